@@ -1,0 +1,113 @@
+"""Settings for the API, the worker and the CLI: one object, read from the environment."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+from pydantic import AliasChoices, Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Every knob an operator can turn; each field names its environment variable."""
+
+    model_config = SettingsConfigDict(extra="ignore", populate_by_name=True)
+
+    data_dir: Path = Field(
+        default=Path("cloud2cnc-data"),
+        validation_alias=AliasChoices("CLOUD2CNC_DATA_DIR", "data_dir"),
+        description="Artifacts, uploads, the SQLite database and the filesystem broker live here.",
+    )
+    database_url: str | None = Field(
+        default=None,
+        validation_alias=AliasChoices("DATABASE_URL", "database_url"),
+        description="SQLAlchemy URL of the job database; SQLite under the data directory when unset.",
+    )
+    celery_broker_url: str = Field(
+        default="filesystem://",
+        validation_alias=AliasChoices("CELERY_BROKER_URL", "celery_broker_url"),
+        description="Celery broker; filesystem:// keeps the queue under the data directory.",
+    )
+    api_key: str | None = Field(
+        default=None,
+        validation_alias=AliasChoices("CLOUD2CNC_API_KEY", "api_key"),
+        description="When set, every /v1 route requires it in the X-API-Key header.",
+    )
+    max_upload_mb: float = Field(
+        default=512.0, gt=0,
+        validation_alias=AliasChoices("CLOUD2CNC_MAX_UPLOAD_MB", "max_upload_mb"),
+    )
+    min_points: int = Field(
+        default=100, ge=1,
+        validation_alias=AliasChoices("CLOUD2CNC_MIN_POINTS", "min_points"),
+    )
+    max_points: int = Field(
+        default=20_000_000, ge=1,
+        validation_alias=AliasChoices("CLOUD2CNC_MAX_POINTS", "max_points"),
+    )
+    stage_lease_s: float = Field(
+        default=60.0, gt=0,
+        validation_alias=AliasChoices("CLOUD2CNC_STAGE_LEASE_S", "stage_lease_s"),
+        description="A running stage renews its lease every lease/4 s; once it lapses the reconciler re-queues it.",
+    )
+    reconcile_interval_s: float = Field(
+        default=10.0, gt=0,
+        validation_alias=AliasChoices("CLOUD2CNC_RECONCILE_INTERVAL_S", "reconcile_interval_s"),
+    )
+    max_stage_attempts: int = Field(
+        default=3, ge=1,
+        validation_alias=AliasChoices("CLOUD2CNC_MAX_STAGE_ATTEMPTS", "max_stage_attempts"),
+    )
+    stage_time_limit_s: float = Field(
+        default=3600.0, gt=0,
+        validation_alias=AliasChoices("CLOUD2CNC_STAGE_TIME_LIMIT_S", "stage_time_limit_s"),
+        description="Hard limit of one stage; the soft limit that fails it cleanly is 95 % of it.",
+    )
+    worker_max_memory_mb: int = Field(
+        default=4096, ge=64,
+        validation_alias=AliasChoices("CLOUD2CNC_WORKER_MAX_MEMORY_MB", "worker_max_memory_mb"),
+        description="A worker child is replaced after a task once its resident memory passes this.",
+    )
+    blas_threads: int = Field(
+        default=1, ge=1,
+        validation_alias=AliasChoices("CLOUD2CNC_BLAS_THREADS", "blas_threads"),
+    )
+    stage_plugins: str = Field(
+        default="",
+        validation_alias=AliasChoices("CLOUD2CNC_STAGE_PLUGINS", "stage_plugins"),
+        description="Comma-separated modules whose STAGES are appended to the pipeline (tests use it).",
+    )
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return int(self.max_upload_mb * 1024 * 1024)
+
+    @property
+    def resolved_database_url(self) -> str:
+        if self.database_url:
+            url = self.database_url
+            # Operators paste postgres:// URLs; SQLAlchemy wants the driver spelled out.
+            for prefix in ("postgres://", "postgresql://"):
+                if url.startswith(prefix):
+                    return "postgresql+psycopg://" + url[len(prefix):]
+            return url
+        return f"sqlite:///{(self.data_dir / 'jobs.db').resolve()}"
+
+    @property
+    def artifacts_dir(self) -> Path:
+        return self.data_dir / "artifacts"
+
+    @property
+    def uploads_dir(self) -> Path:
+        return self.data_dir / "uploads"
+
+    @property
+    def broker_dir(self) -> Path:
+        return self.data_dir / "broker"
+
+
+@functools.lru_cache
+def get_settings() -> Settings:
+    """The process-wide settings; tests clear the cache after changing the environment."""
+    return Settings()

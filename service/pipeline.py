@@ -1,0 +1,82 @@
+"""The stage registry: which stages exist, in DESIGN order, and how a stage's cache key is made.
+
+This module holds metadata only; each stage's implementation is named by a
+dotted path and imported by the worker (it pulls in the geometry stack).
+Stages that are not implemented yet are not listed: a job runs the stages here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+#: The full pipeline of DESIGN.md, in order; `STAGES` holds the implemented subset.
+DESIGN_ORDER = ("ingest", "reconstruct", "denoise", "remesh", "segment", "fit", "plan", "verify")
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    name: str
+    version: str
+    """Bumped whenever a code change alters the stage's outputs; it is part of the cache key."""
+    inputs: tuple[str, ...]
+    """Artifact names the stage may read; those a job has are hashed into the cache key."""
+    outputs: tuple[str, ...]
+    """Artifact names the stage may write."""
+    param_groups: tuple[str, ...]
+    """`JobParams` groups the stage reads; only these enter its cache key."""
+    run: str
+    """`module:function` of the implementation, called with a `worker.context.StageContext`."""
+    settings: tuple[str, ...] = field(default=())
+    """Operator settings (from `Settings`) the stage reads; they enter the cache key too."""
+
+
+STAGES: tuple[StageSpec, ...] = (
+    StageSpec(
+        name="ingest",
+        version="1",
+        inputs=("input",),
+        outputs=("cloud.ply", "mesh_raw.ply", "ingest.json"),
+        param_groups=("ingest",),
+        run="worker.stages.ingest:run_ingest",
+        settings=("min_points", "max_points"),
+    ),
+)
+
+
+def load_stages(plugins: str = "") -> tuple[StageSpec, ...]:
+    """The built-in stages plus those of each comma-separated plugin module's `STAGES`."""
+    stages = list(STAGES)
+    for module_name in filter(None, (p.strip() for p in plugins.split(","))):
+        stages.extend(importlib.import_module(module_name).STAGES)
+    names = [s.name for s in stages]
+    if len(set(names)) != len(names):
+        raise ValueError(f"duplicate stage names in the pipeline: {names}")
+    return tuple(stages)
+
+
+def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[str]:
+    """Names of the stages up to and including `until` (all when None)."""
+    names = [s.name for s in stages]
+    if until is None:
+        return names
+    if until not in names:
+        raise ValueError(f"unknown stage {until!r}; implemented stages are {', '.join(names)}")
+    return names[: names.index(until) + 1]
+
+
+def cache_key(spec: StageSpec, params: dict[str, Any], input_hashes: dict[str, str],
+              settings: dict[str, Any]) -> str:
+    """hash(stage, stage code version, its params, its input artifact hashes) as in DESIGN."""
+    material = {
+        "stage": spec.name,
+        "version": spec.version,
+        "params": {g: params.get(g, {}) for g in spec.param_groups},
+        "settings": {k: settings[k] for k in spec.settings},
+        "inputs": {k: input_hashes[k] for k in sorted(input_hashes) if k in spec.inputs},
+    }
+    text = json.dumps(material, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()

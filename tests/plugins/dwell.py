@@ -1,0 +1,36 @@
+"""A test-only stage that takes a while: it lets tests kill, cancel and watch a running stage.
+
+Loaded through CLOUD2CNC_STAGE_PLUGINS=tests.plugins.dwell. It reads
+CLOUD2CNC_TEST_DWELL_S (seconds to take) and appends one line to
+CLOUD2CNC_TEST_DWELL_LOG each time it runs to completion.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from service.pipeline import StageSpec
+from worker.context import StageContext, write_json
+
+
+def run_dwell(ctx: StageContext) -> dict[str, Path]:
+    seconds = float(os.environ.get("CLOUD2CNC_TEST_DWELL_S", "1"))
+    report = json.loads(ctx.inputs["ingest.json"].read_text())
+    t0 = time.monotonic()
+    while (elapsed := time.monotonic() - t0) < seconds:
+        ctx.check_cancel()
+        ctx.progress(elapsed / seconds, "dwelling")
+        time.sleep(0.05)
+    log = os.environ.get("CLOUD2CNC_TEST_DWELL_LOG")
+    if log:
+        with open(log, "a") as fh:
+            fh.write(f"{ctx.job_id} {os.getpid()}\n")
+    return {"dwell.json": write_json(ctx.output("dwell.json"), {"points": report["counts"]["kept"],
+                                                                 "seconds": seconds})}
+
+
+STAGES = (StageSpec(name="dwell", version="1", inputs=("ingest.json",), outputs=("dwell.json",),
+                    param_groups=("fit",), run="tests.plugins.dwell:run_dwell"),)

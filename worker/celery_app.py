@@ -1,0 +1,19 @@
+"""The worker's Celery application: the shared configuration plus the stage task.
+
+`celery -A worker.celery_app worker` and `cloud2cnc worker` both load this module.
+"""
+
+from __future__ import annotations
+
+import os
+
+from service.config import get_settings
+from service.queue import get_celery
+
+settings = get_settings()
+for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    # Set before numpy loads in the pool children, so a stage does not oversubscribe the cores.
+    os.environ.setdefault(var, str(settings.blas_threads))
+
+app = get_celery(settings)
+app.conf.update(imports=("worker.tasks",), worker_concurrency=int(os.environ.get("CLOUD2CNC_CONCURRENCY", "1")))

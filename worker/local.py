@@ -1,0 +1,98 @@
+"""Run the pipeline in-process on one file: no database, no queue, artifacts under DESIGN's names in a folder.
+
+This is `cloud2cnc run`, and how benchmarks and scripts drive the pipeline.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+from service.config import Settings
+from service.params import JobParams
+from service.pipeline import load_stages, stage_names_until
+from worker.context import StageCanceled, StageContext, StageError, StageSkipped, write_json
+from worker.runner import _implementation
+
+
+@dataclass(frozen=True)
+class StageReport:
+    name: str
+    status: str
+    seconds: float
+    outputs: tuple[str, ...] = ()
+    error: str | None = None
+
+
+class _Bar:
+    """A one-line progress bar on a terminal; plain lines when the stream is not a terminal."""
+
+    def __init__(self, stream: TextIO, name: str) -> None:
+        self.stream, self.name = stream, name
+        self.tty = stream.isatty()
+        self.last = -1.0
+
+    def update(self, fraction: float, message: str | None = None) -> None:
+        fraction = max(0.0, min(1.0, fraction))
+        if self.tty:
+            filled = int(fraction * 30)
+            self.stream.write(f"\r{self.name:<12} [{'#' * filled}{'.' * (30 - filled)}] {fraction:4.0%} "
+                              f"{(message or '')[:30]:<30}")
+            self.stream.flush()
+        elif fraction - self.last >= 0.25 or fraction >= 1.0 and self.last < 1.0:
+            self.stream.write(f"{self.name}: {fraction:.0%} {message or ''}\n")
+            self.last = fraction
+
+    def end(self, text: str) -> None:
+        self.stream.write(("\r" if self.tty else "") + f"{self.name:<12} {text}" + (" " * 40 if self.tty else "")
+                          + "\n")
+        self.stream.flush()
+
+
+def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settings: Settings,
+              until: str | None = None, stream: TextIO = sys.stderr) -> list[StageReport]:
+    """Run the implemented stages (up to `until`) on `input_path`; returns one report per stage.
+
+    Stops at the first failed stage. Raises `ValueError` for invalid params or an unknown stage.
+    """
+    if not input_path.is_file():
+        raise ValueError(f"input file not found: {input_path}")
+    params = JobParams.model_validate(params).model_dump(mode="json")
+    stages = load_stages(settings.stage_plugins)
+    names = stage_names_until(stages, until)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json(out_dir / "params.json", params)
+    reports = []
+    for spec in stages:
+        if spec.name not in names:
+            break
+        inputs = {"input": input_path}
+        inputs.update({n: out_dir / n for n in spec.inputs if (out_dir / n).is_file()})
+        bar = _Bar(stream, spec.name)
+        scratch = out_dir / f".{spec.name}.tmp"
+        shutil.rmtree(scratch, ignore_errors=True)
+        scratch.mkdir()
+        ctx = StageContext(job_id="local", stage=spec.name, inputs=inputs, out_dir=scratch, params=params,
+                           settings={k: getattr(settings, k) for k in spec.settings}, progress=bar.update)
+        t0 = time.perf_counter()
+        try:
+            outputs = _implementation(spec)(ctx)
+        except StageSkipped as exc:
+            reports.append(StageReport(spec.name, "skipped", time.perf_counter() - t0, error=str(exc) or None))
+            bar.end(f"skipped {exc}")
+            continue
+        except (StageError, ValueError, StageCanceled) as exc:
+            reports.append(StageReport(spec.name, "failed", time.perf_counter() - t0, error=str(exc)))
+            bar.end(f"FAILED: {exc}")
+            break
+        for name, path in outputs.items():
+            Path(path).replace(out_dir / name)  # same folder: an atomic rename
+        shutil.rmtree(scratch, ignore_errors=True)
+        seconds = time.perf_counter() - t0
+        reports.append(StageReport(spec.name, "succeeded", seconds, tuple(outputs)))
+        bar.end(f"done in {seconds:.2f} s: {', '.join(outputs)}")
+    return reports

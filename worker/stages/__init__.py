@@ -1,0 +1,1 @@
+"""Stage implementations: load artifacts, call `cam`, write artifacts. One module per stage."""
