@@ -55,8 +55,8 @@ def test_readyz_reports_a_dead_database(tmp_path):
     s = Settings(data_dir=tmp_path / "d", database_url="postgresql://nobody@127.0.0.1:1/none")
     with TestClient(create_app(s, reconcile=False)) as c:
         r = c.get("/readyz")
-    assert r.status_code == 503
-    assert r.json()["checks"]["database"].startswith("error")
+    body = assert_problem(r, 503, "not-ready")
+    assert body["checks"]["database"].startswith("error") and body["checks"]["storage"] == "ok"
 
 
 def test_create_returns_202_location_and_job(client):
