@@ -50,12 +50,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _stop(proc: subprocess.Popen, grace_s: float = 15.0) -> None:
-    """Warm shutdown (SIGTERM: finish or hand back the current stage), then cold, then kill."""
+    """Warm shutdown (SIGTERM: finish or hand back the current stage), then cold, then kill them all."""
     if proc.poll() is not None:
         return
     for sig, wait in ((signal.SIGTERM, grace_s), (signal.SIGQUIT, 5.0), (signal.SIGKILL, 5.0)):
         try:
-            os.killpg(proc.pid, sig)
+            # Celery's main process stops its own pool; only the last resort reaches the whole group.
+            (os.killpg if sig == signal.SIGKILL else os.kill)(proc.pid, sig)
         except ProcessLookupError:
             return
         try:

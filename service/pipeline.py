@@ -32,6 +32,8 @@ class StageSpec:
     """`module:function` of the implementation, called with a `worker.context.StageContext`."""
     settings: tuple[str, ...] = field(default=())
     """Operator settings (from `Settings`) the stage reads; they enter the cache key too."""
+    time_limit_s: float | None = None
+    """Hard time limit of this stage; None takes `Settings.stage_time_limit_s`."""
 
 
 STAGES: tuple[StageSpec, ...] = (
@@ -43,6 +45,7 @@ STAGES: tuple[StageSpec, ...] = (
         param_groups=("ingest",),
         run="worker.stages.ingest:run_ingest",
         settings=("min_points", "max_points"),
+        time_limit_s=900.0,
     ),
 )
 
@@ -56,6 +59,11 @@ def load_stages(plugins: str = "") -> tuple[StageSpec, ...]:
     if len(set(names)) != len(names):
         raise ValueError(f"duplicate stage names in the pipeline: {names}")
     return tuple(stages)
+
+
+def time_limit_s(spec: StageSpec, default_s: float) -> float:
+    """The hard time limit of a stage in seconds."""
+    return spec.time_limit_s if spec.time_limit_s is not None else default_s
 
 
 def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[str]:

@@ -67,13 +67,26 @@ def get_celery(settings: Settings) -> Celery:
     return _APPS[key]
 
 
-def enqueue_chain(app: Celery, job_id: str, stages: Iterable[tuple[str, str]]) -> None:
-    """Send the chain `stage1 | stage2 | ...` for a job; each item is (stage name, task id)."""
-    sigs = [app.signature(TASK_NAME, args=(job_id, name), immutable=True, queue=QUEUE).set(task_id=task_id)
-            for name, task_id in stages]
+def enqueue_chain(app: Celery, job_id: str, stages: Iterable[tuple[str, str, float]]) -> None:
+    """Send the chain `stage1 | stage2 | ...` for a job; items are (stage name, task id, hard limit in s).
+
+    The soft limit, 95 % of the hard one, lets the stage fail with a message before it is killed.
+    """
+    sigs = [app.signature(TASK_NAME, args=(job_id, name), immutable=True, queue=QUEUE)
+            .set(task_id=task_id, time_limit=limit_s, soft_time_limit=limit_s * 0.95)
+            for name, task_id, limit_s in stages]
     if not sigs:
         return
     chain(*sigs).apply_async() if len(sigs) > 1 else sigs[0].apply_async()
+
+
+def enqueue_stages(app: Celery, settings: Settings, job_id: str, stages: Iterable[tuple[str, str]]) -> None:
+    """`enqueue_chain` for (stage name, task id) pairs, with each stage's own time limit."""
+    from service.pipeline import load_stages, time_limit_s
+
+    specs = {s.name: s for s in load_stages(settings.stage_plugins)}
+    enqueue_chain(app, job_id, [(name, task_id, time_limit_s(specs[name], settings.stage_time_limit_s))
+                                for name, task_id in stages])
 
 
 def revoke(app: Celery, task_ids: list[str]) -> None:

@@ -12,7 +12,7 @@ import threading
 from service import jobs
 from service.config import Settings
 from service.db import Job, get_sessionmaker
-from service.queue import enqueue_chain, get_celery
+from service.queue import enqueue_stages, get_celery
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,7 @@ def reconcile_once(settings: Settings) -> int:
     queue = get_celery(settings)
     for job_id, stages in chains:
         log.warning("re-queueing job %s from stage %s: its worker stopped answering", job_id, stages[0][0])
-        enqueue_chain(queue, job_id, stages)
+        enqueue_stages(queue, settings, job_id, stages)
     return len(chains)
 
 

@@ -79,5 +79,5 @@ class RerunIn(BaseModel):
 
 
 class Health(BaseModel):
-    status: Literal["ok", "unavailable"]
+    status: Literal["ok"]
     checks: dict[str, str] = Field(default_factory=dict)

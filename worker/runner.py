@@ -24,7 +24,7 @@ from sqlalchemy import select
 from service import jobs
 from service.config import Settings
 from service.db import Artifact, Job, get_sessionmaker, utcnow
-from service.pipeline import StageSpec, cache_key, load_stages
+from service.pipeline import StageSpec, cache_key, load_stages, time_limit_s
 from service.store import ArtifactStore
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 
@@ -184,8 +184,9 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
             except Exception as exc:  # noqa: BLE001 — anything else is our bug; the user gets a reference
                 ref = uuid.uuid4().hex[:12]
                 if type(exc).__name__ == "SoftTimeLimitExceeded":
-                    detail = (f"stage {stage_name} ran longer than its limit of "
-                              f"{settings.stage_time_limit_s:.0f} s; try a smaller input or coarser parameters")
+                    limit = time_limit_s(spec, settings.stage_time_limit_s)
+                    detail = (f"stage {stage_name} ran longer than its limit of {limit:.0f} s; "
+                              "try a smaller input or coarser parameters")
                 else:
                     log.exception("stage %s of job %s crashed (ref %s)", stage_name, job_id, ref)
                     detail = f"internal error in stage {stage_name} (reference {ref}); the operator's log has details"

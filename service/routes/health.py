@@ -10,7 +10,8 @@ from sqlalchemy import text
 
 from service.db import get_engine
 from service.deps import QueueDep, SettingsDep
-from service.schemas import Health
+from service.problems import problem_response
+from service.schemas import Health, ProblemOut
 
 router = APIRouter(tags=["health"])
 
@@ -28,7 +29,9 @@ def _check(fn) -> str:
         return f"error: {type(exc).__name__}: {str(exc)[:200]}"
 
 
-@router.get("/readyz", response_model=Health, responses={503: {"model": Health}}, summary="Readiness")
+@router.get("/readyz", response_model=Health, responses={503: {"model": ProblemOut, "content": {
+    "application/problem+json": {}}, "description": "A dependency is down; `checks` says which"}},
+    summary="Readiness")
 def readyz(settings: SettingsDep, queue: QueueDep) -> JSONResponse:
     def database() -> None:
         with get_engine(settings.resolved_database_url).connect() as conn:
@@ -44,6 +47,8 @@ def readyz(settings: SettingsDep, queue: QueueDep) -> JSONResponse:
             pass
 
     checks = {"database": _check(database), "broker": _check(broker), "storage": _check(storage)}
-    ok = all(v == "ok" for v in checks.values())
-    body = Health(status="ok" if ok else "unavailable", checks=checks)
-    return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+    down = [k for k, v in checks.items() if v != "ok"]
+    if down:
+        return problem_response(503, "not-ready", "Not ready", f"not reachable: {', '.join(down)}",
+                                instance="/readyz", checks=checks)
+    return JSONResponse(Health(status="ok", checks=checks).model_dump())

@@ -25,7 +25,7 @@ from service.params import JobParams, merge_params
 from service.pipeline import load_stages
 from service.present import job_out
 from service.problems import Problem, validation_errors
-from service.queue import enqueue_chain, revoke
+from service.queue import enqueue_stages, revoke
 from service.schemas import JobList, JobOut, JobStatus, ProblemOut, RerunIn
 from service.store import ArtifactStore
 from service.upload import receive_upload
@@ -106,9 +106,9 @@ def _start_job(session: Session, store: ArtifactStore, settings, *, input_name: 
     return job
 
 
-def _enqueue(session: Session, queue, job: Job) -> None:
+def _enqueue(session: Session, queue, settings, job: Job) -> None:
     try:
-        enqueue_chain(queue, job.id, [(s.name, s.task_id) for s in job.stages])
+        enqueue_stages(queue, settings, job.id, [(s.name, s.task_id) for s in job.stages])
     except Exception as exc:  # noqa: BLE001 — the broker is down: the job must not sit queued forever
         for s in job.stages:
             s.status = "canceled"
@@ -188,7 +188,7 @@ async def create_job(request: Request, response: Response, session: SessionDep, 
             session.commit()
         raise
     try:
-        _enqueue(session, queue, job)
+        _enqueue(session, queue, settings, job)
     except Problem:
         if key_row_created:
             session.execute(delete(IdempotencyKey).where(IdempotencyKey.key == idempotency_key))
@@ -267,7 +267,7 @@ def rerun_job(job_id: str, response: Response, session: SessionDep, store: Store
     job = _start_job(session, store, settings, input_name=old.input_name, input_sha256=old.input_sha256,
                      input_size=old.input_size, input_format=old.input_format, params=params, parent_id=old.id)
     session.commit()
-    _enqueue(session, queue, job)
+    _enqueue(session, queue, settings, job)
     session.refresh(job)
     _location(response, job.id)
     return job_out(job)

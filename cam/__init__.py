@@ -1,0 +1,1 @@
+"""cloud2cnc geometry core: arrays in, arrays or small frozen records out."""

@@ -1,0 +1,20 @@
+"""Load a whole input file, turning file-system failures into :class:`ReadError`."""
+
+from __future__ import annotations
+
+import os
+
+from cam.io.errors import ReadError
+
+__all__ = ["read_bytes"]
+
+
+def read_bytes(path: str | os.PathLike[str]) -> bytes:
+    """Return the file's bytes; a missing file or a directory is a ReadError naming the path."""
+    try:
+        with open(path, "rb") as handle:
+            return handle.read()
+    except FileNotFoundError:
+        raise ReadError(f"{os.fspath(path)} does not exist") from None
+    except IsADirectoryError:
+        raise ReadError(f"{os.fspath(path)} is a directory, not a file") from None

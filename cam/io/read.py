@@ -1,0 +1,68 @@
+"""Read any supported upload, recognising its format from its content."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from cam.io.errors import ReadError
+from cam.io.formats import SNIFF_BYTES, describe_unsupported, sniff_format
+from cam.io.mesh import read_obj, read_stl
+from cam.io.pcd import read_pcd
+from cam.io.ply import read_ply
+from cam.io.records import InputData
+from cam.io.text import read_xyz
+
+__all__ = ["read_input"]
+
+_READERS: dict[str, Callable[[str | os.PathLike[str]], InputData]] = {
+    "ply": read_ply,
+    "obj": read_obj,
+    "stl_ascii": read_stl,
+    "stl_binary": read_stl,
+    "pcd": read_pcd,
+    "xyz": read_xyz,
+}
+
+
+def read_input(path: str | os.PathLike[str]) -> InputData:
+    """Read a point cloud or mesh upload of any supported format.
+
+    The format comes from the first :data:`~cam.io.formats.SNIFF_BYTES` bytes
+    and the file size, never from the file name, so a renamed or extension-less
+    upload reads the same.
+
+    Returns
+    -------
+    :class:`~cam.io.records.InputData`; ``faces`` is None for a point cloud.
+
+    Raises
+    ------
+    ReadError
+        For an empty file, a format we do not read (saying what it looks like
+        when it can), or any reader's complaint about the content.
+    """
+    target = Path(path)
+    try:
+        size = target.stat().st_size
+        with open(target, "rb") as handle:
+            head = handle.read(SNIFF_BYTES)
+    except FileNotFoundError:
+        raise ReadError(f"{target} does not exist") from None
+    except IsADirectoryError:
+        raise ReadError(f"{target} is a directory, not a file") from None
+    if size == 0 or not head.strip():
+        raise ReadError("the file is empty")
+    kind = sniff_format(head, total_size=size)
+    if kind is None:
+        what = describe_unsupported(head)
+        looks = f"; it looks like {what}" if what else ""
+        raise ReadError(
+            f"{target.name} is not a point cloud or mesh format we read "
+            f"(PLY, XYZ/PTS/TXT/CSV, PCD, OBJ, STL){looks}"
+        )
+    data = _READERS[kind](target)
+    if len(data.points) == 0:
+        raise ReadError(f"{target.name} holds no points")
+    return data

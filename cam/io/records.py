@@ -1,0 +1,48 @@
+"""The record every reader in :mod:`cam.io` returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["InputData"]
+
+
+@dataclass(frozen=True, eq=False)
+class InputData:
+    """What a file holds, in the file's own units and frame.
+
+    Attributes
+    ----------
+    points
+        float64 (n, 3): point or vertex coordinates. Non-finite rows are kept;
+        :func:`cam.ingest.clean_cloud` drops and counts them.
+    normals
+        float64 (n, 3) or None: per-point normals as stored (not normalised).
+    colors
+        uint8 (n, 3) or None: per-point RGB.
+    faces
+        int64 (m, 3) or None: triangles indexing ``points`` (polygons are fan
+        triangulated). None means the file is a point cloud.
+    format
+        The sniffed format name (see :data:`cam.io.formats.FORMATS`).
+    comments
+        The file's own comment or header lines, in order.
+    notes
+        What the reader decided that a user may want to know (columns ignored,
+        polygons triangulated, ...), as sentences.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    format: str = "unknown"
+    comments: tuple[str, ...] = field(default=())
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def is_mesh(self) -> bool:
+        """True when the file holds at least one face."""
+        return self.faces is not None and len(self.faces) > 0

@@ -1,0 +1,62 @@
+"""`cloud2cnc serve`, the embedded default, as a user starts it: a job runs, Ctrl-C stops both processes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import httpx
+import psutil
+import pytest
+
+from tests.conftest import ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_runs_a_job_and_stops_cleanly_on_ctrl_c(tmp_path):
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("DATABASE_URL", "CELERY_BROKER_URL", "CLOUD2CNC_API_KEY", "CLOUD2CNC_STAGE_PLUGINS")}
+    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+                             "--data-dir", str(tmp_path / "data")], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        banner = proc.stdout.readline()
+        assert f"http://127.0.0.1:{port}/" in banner
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(f"{base}/readyz").status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.2)
+        with open(ROOT / "examples" / "dome_block.xyz", "rb") as fh:
+            r = httpx.post(f"{base}/v1/jobs", files={"file": ("dome_block.xyz", fh)})
+        assert r.status_code == 202, r.text
+        url = base + r.headers["location"]
+        while time.monotonic() < deadline + 60:
+            job = httpx.get(url).json()
+            if job["status"] in ("succeeded", "failed"):
+                break
+            time.sleep(0.2)
+        assert job["status"] == "succeeded", job
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert children, "serve started no worker process"
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=40)
+    assert proc.returncode == 0
+    gone, alive = psutil.wait_procs(children, timeout=20)
+    assert not alive, f"worker processes left running: {alive}"

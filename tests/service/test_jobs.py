@@ -1,0 +1,101 @@
+"""Job and stage transitions on a real database: claims are exclusive, leases lapse, attempts are capped."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from service import jobs
+from service.db import Job, get_sessionmaker
+from service.pipeline import STAGES, cache_key
+
+
+@pytest.fixture
+def Session(tmp_path):
+    return get_sessionmaker(f"sqlite:///{tmp_path / 'jobs.db'}")
+
+
+def _job(Session, stages=("ingest", "dwell")) -> str:
+    with Session.begin() as s:
+        job = jobs.create_job(s, input_name="a.xyz", input_sha256="0" * 64, input_size=1, input_format="xyz",
+                              params={}, stage_names=list(stages))
+        return job.id
+
+
+def test_a_stage_is_claimed_once(Session):
+    job_id = _job(Session)
+    with Session.begin() as s:
+        first = jobs.claim_stage(s, job_id, "ingest", lease_s=30, worker="a")
+    with Session.begin() as s:
+        second = jobs.claim_stage(s, job_id, "ingest", lease_s=30, worker="b")
+    assert first is not None and second is None
+    with Session() as s:
+        assert s.get(Job, job_id).status == "running"
+
+
+def test_only_the_lease_holder_finishes(Session):
+    job_id = _job(Session, ("ingest",))
+    with Session.begin() as s:
+        claim = jobs.claim_stage(s, job_id, "ingest", lease_s=30, worker="a")
+    with Session.begin() as s:
+        assert not jobs.finish_stage(s, job_id, "not-the-token", status="succeeded")
+    with Session.begin() as s:
+        assert jobs.finish_stage(s, job_id, claim.token, status="succeeded")
+    with Session.begin() as s:
+        assert not jobs.finish_stage(s, job_id, claim.token, status="succeeded")  # not twice
+    with Session() as s:
+        assert s.get(Job, job_id).status == "succeeded"
+
+
+def test_lapsed_lease_is_requeued_then_failed_after_max_attempts(Session):
+    job_id = _job(Session, ("ingest",))
+    for attempt in (1, 2, 3):
+        with Session.begin() as s:
+            claim = jobs.claim_stage(s, job_id, "ingest", lease_s=0.01, worker="w")
+            assert claim.attempt == attempt
+        time.sleep(0.03)
+        with Session.begin() as s:
+            requeued = jobs.reconcile(s, max_attempts=3)
+        if attempt < 3:
+            assert requeued == [jobs.Requeue(job_id, "ingest")]
+        else:
+            assert requeued == []
+    with Session() as s:
+        job = s.get(Job, job_id)
+        assert job.status == "failed"
+        assert job.error["type"] == "urn:cloud2cnc:problem:worker-lost" and "3 times" in job.error["detail"]
+
+
+def test_a_live_lease_is_left_alone(Session):
+    job_id = _job(Session, ("ingest",))
+    with Session.begin() as s:
+        claim = jobs.claim_stage(s, job_id, "ingest", lease_s=0.05, worker="w")
+    for _ in range(4):
+        time.sleep(0.02)
+        with Session.begin() as s:
+            assert jobs.renew_lease(s, claim.token, lease_s=0.05, progress=0.5)
+        with Session.begin() as s:
+            assert jobs.reconcile(s, max_attempts=3) == []
+
+
+def test_cancel_marks_queued_stages_and_refuses_finished_jobs(Session):
+    job_id = _job(Session)
+    with Session.begin() as s:
+        assert jobs.request_cancel(s, s.get(Job, job_id))
+    with Session.begin() as s:
+        job = s.get(Job, job_id)
+        assert job.status == "canceled" and [st.status for st in job.stages] == ["canceled", "canceled"]
+        assert not jobs.request_cancel(s, job)
+        assert jobs.claim_stage(s, job_id, "ingest", lease_s=30, worker="w") is None
+
+
+def test_cache_key_depends_only_on_what_the_stage_reads():
+    spec = STAGES[0]
+    base = {"ingest": {"units": "mm"}, "tool": {"radius_mm": 3}}
+    settings = {"min_points": 10, "max_points": 100}
+    key = cache_key(spec, base, {"input": "a" * 64}, settings)
+    assert key == cache_key(spec, {**base, "tool": {"radius_mm": 1}}, {"input": "a" * 64}, settings)
+    assert key != cache_key(spec, {**base, "ingest": {"units": "inch"}}, {"input": "a" * 64}, settings)
+    assert key != cache_key(spec, base, {"input": "b" * 64}, settings)
+    assert key != cache_key(spec, base, {"input": "a" * 64}, {**settings, "max_points": 99})
