@@ -23,16 +23,16 @@ def run_ingest(ctx: StageContext) -> dict[str, Path]:
     ctx.progress(0.6, "cleaning")
     try:
         if data.faces is not None:
-            clean = clean_mesh(data.points, data.faces, scale_to_mm=scale,
-                               max_points=ctx.settings["max_points"])
+            clean = clean_mesh(data.points, data.faces, scale_to_mm=scale, max_points=ctx.settings["max_points"],
+                               format=data.format, units=units, notes=data.notes)
             out = {"mesh_raw.ply": write_ply_mesh(ctx.output("mesh_raw.ply"), clean.vertices, clean.faces)}
         else:
-            clean = clean_cloud(data.points, data.normals, scale_to_mm=scale,
-                                min_points=ctx.settings["min_points"], max_points=ctx.settings["max_points"])
+            clean = clean_cloud(data.points, data.normals, scale_to_mm=scale, min_points=ctx.settings["min_points"],
+                                max_points=ctx.settings["max_points"], format=data.format, units=units,
+                                notes=data.notes)
             out = {"cloud.ply": write_ply_points(ctx.output("cloud.ply"), clean.points, clean.normals)}
     except ValueError as exc:
         raise StageError(str(exc)) from exc
-    report = {"format": data.format, "units": units, **clean.report}
-    out["ingest.json"] = write_json(ctx.output("ingest.json"), report)
+    out["ingest.json"] = write_json(ctx.output("ingest.json"), clean.report)
     ctx.progress(1.0, None)
     return out
