@@ -8,7 +8,15 @@ from typing import Any, Callable
 
 
 class StageError(Exception):
-    """A failure the user can act on; its message is shown to them as it is."""
+    """A failure the user can act on; its message is shown to them as it is.
+
+    `outputs` (artifact name → path) are stored even though the stage failed,
+    so the user can inspect what went wrong (e.g. `segments.ply` of a failed segmentation).
+    """
+
+    def __init__(self, message: str, *, outputs: dict[str, Path] | None = None) -> None:
+        super().__init__(message)
+        self.outputs = dict(outputs or {})
 
 
 class StageCanceled(Exception):

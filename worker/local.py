@@ -86,6 +86,9 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
             bar.end(f"skipped {exc}")
             continue
         except (StageError, ValueError, StageCanceled) as exc:
+            for name, path in getattr(exc, "outputs", {}).items():
+                Path(path).replace(out_dir / name)  # kept for inspection
+            shutil.rmtree(scratch, ignore_errors=True)
             reports.append(StageReport(spec.name, "failed", time.perf_counter() - t0, error=str(exc)))
             bar.end(f"FAILED: {exc}")
             break

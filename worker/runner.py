@@ -117,8 +117,7 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
     with Session.begin() as session:
         hit = jobs.lookup_cache(session, key)
         if hit is not None and all(store.exists(o["sha256"]) for o in hit.outputs.values()):
-            for name, o in hit.outputs.items():
-                jobs.add_artifact(session, job_id, name=name, stage=stage_name, sha256=o["sha256"], size=o["size"])
+            _add_artifacts(session, job_id, stage_name, hit.outputs)
             ok = jobs.finish_stage(session, job_id, claim.token, status="succeeded", cache_key=key,
                                    reused_from=hit.job_id, started_at=hit.started_at, finished_at=hit.finished_at,
                                    message=f"reused from job {hit.job_id}")
@@ -178,8 +177,14 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
                 finish(status="canceled", message="canceled by the user")
                 return Outcome.STOP
             except (StageError, ValueError) as exc:
-                finish(status="failed", error=_problem("stage-failed", f"Stage {stage_name} failed", str(exc),
-                                                       stage_name))
+                partial = _store_outputs(store, spec, getattr(exc, "outputs", {}))
+                with Session.begin() as session:
+                    ok = jobs.finish_stage(session, job_id, claim.token, status="failed", error=_problem(
+                        "stage-failed", f"Stage {stage_name} failed", str(exc), stage_name))
+                    if ok:
+                        _add_artifacts(session, job_id, stage_name, partial)
+                if not ok:
+                    _drop_unreferenced(Session, store, [o["sha256"] for o in partial.values()])
                 return Outcome.STOP
             except Exception as exc:  # noqa: BLE001 — anything else is our bug; the user gets a reference
                 ref = uuid.uuid4().hex[:12]
@@ -193,15 +198,9 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
                 finish(status="failed", error=_problem("stage-error", f"Stage {stage_name} failed", detail,
                                                        stage_name))
                 return Outcome.STOP
-        stored = {}
-        for name, path in outputs.items():
-            if name not in spec.outputs:
-                raise RuntimeError(f"stage {stage_name} wrote undeclared artifact {name!r}")
-            sha, size = store.put(Path(path), move=True)
-            stored[name] = {"sha256": sha, "size": size}
+        stored = _store_outputs(store, spec, outputs)
         with Session.begin() as session:
-            for name, o in stored.items():
-                jobs.add_artifact(session, job_id, name=name, stage=stage_name, sha256=o["sha256"], size=o["size"])
+            _add_artifacts(session, job_id, stage_name, stored)
             finished = utcnow()
             ok = jobs.finish_stage(session, job_id, claim.token, status="succeeded", cache_key=key,
                                    started_at=started, finished_at=finished)
@@ -215,6 +214,21 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
         return Outcome.CONTINUE if ok else Outcome.STOP
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _store_outputs(store: ArtifactStore, spec: StageSpec, outputs: dict[str, Path]) -> dict[str, dict[str, Any]]:
+    stored = {}
+    for name, path in outputs.items():
+        if name not in spec.outputs:
+            raise RuntimeError(f"stage {spec.name} wrote undeclared artifact {name!r}")
+        sha, size = store.put(Path(path), move=True)
+        stored[name] = {"sha256": sha, "size": size}
+    return stored
+
+
+def _add_artifacts(session: Any, job_id: str, stage: str, stored: dict[str, dict[str, Any]]) -> None:
+    for name, o in stored.items():
+        jobs.add_artifact(session, job_id, name=name, stage=stage, sha256=o["sha256"], size=o["size"])
 
 
 def _implementation(spec: StageSpec) -> Callable[[StageContext], dict[str, Path]]:
