@@ -182,7 +182,10 @@ def reconcile(session: Session, *, max_attempts: int) -> list[Requeue]:
                                                  Stage.lease_expires_at < now)).scalars().all()
     requeue = []
     for stage in lapsed:
-        if stage.attempts >= max_attempts:
+        if stage.job.cancel_requested:
+            values: dict[str, Any] = {"status": "canceled", "finished_at": now, "lease_token": None,
+                                      "lease_expires_at": None, "message": "canceled by the user"}
+        elif stage.attempts >= max_attempts:
             error = {
                 "type": "urn:cloud2cnc:problem:worker-lost",
                 "title": "Worker lost",
@@ -190,7 +193,7 @@ def reconcile(session: Session, *, max_attempts: int) -> list[Requeue]:
                           "(killed, out of memory or its machine went away); giving up",
                 "stage": stage.name,
             }
-            values: dict[str, Any] = {"status": "failed", "error": error, "finished_at": now,
+            values = {"status": "failed", "error": error, "finished_at": now,
                                       "lease_token": None, "lease_expires_at": None}
         else:
             values = {"status": "queued", "lease_token": None, "lease_expires_at": None,

@@ -99,3 +99,15 @@ def test_cache_key_depends_only_on_what_the_stage_reads():
     assert key != cache_key(spec, {**base, "ingest": {"units": "inch"}}, {"input": "a" * 64}, settings)
     assert key != cache_key(spec, base, {"input": "b" * 64}, settings)
     assert key != cache_key(spec, base, {"input": "a" * 64}, {**settings, "max_points": 99})
+
+
+def test_a_lapsed_stage_of_a_canceled_job_is_canceled_not_requeued(Session):
+    job_id = _job(Session, ("ingest",))
+    with Session.begin() as s:
+        jobs.claim_stage(s, job_id, "ingest", lease_s=0.01, worker="w")
+        jobs.request_cancel(s, s.get(Job, job_id))
+    time.sleep(0.03)
+    with Session.begin() as s:
+        assert jobs.reconcile(s, max_attempts=3) == []
+    with Session() as s:
+        assert [st.status for st in s.get(Job, job_id).stages] == ["canceled"]
