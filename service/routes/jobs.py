@@ -17,7 +17,7 @@ from sqlalchemy import and_, delete, or_, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from cam.io.formats import FORMAT_EXTENSIONS, sniff_format
+from cam.io.formats import FORMAT_EXTENSIONS, describe_unsupported, sniff_format
 from service import jobs as jobstore
 from service.db import IdempotencyKey, Job
 from service.deps import QueueDep, SessionDep, SettingsDep, StoreDep
@@ -157,9 +157,11 @@ async def create_job(request: Request, response: Response, session: SessionDep, 
             params = _params_from_text(upload.params_text)
             fmt = sniff_format(upload.head, total_size=upload.size)
             if fmt is None:
+                looks_like = describe_unsupported(upload.head)
                 raise Problem(415, "unsupported-format", "Unsupported file format",
-                              f"{upload.filename or 'the upload'} is not a point cloud or mesh format we read: "
-                              "send PLY, XYZ/PTS/TXT/CSV, PCD, OBJ or STL (the format is read from the content, "
+                              f"{upload.filename or 'the upload'} is not a point cloud or mesh format we read"
+                              + (f" (it looks like {looks_like})" if looks_like else "")
+                              + ": send PLY, XYZ/PTS/TXT/CSV, PCD, OBJ or STL (the format is read from the content, "
                               "not the extension)",
                               errors=[{"field": "file", "message": "unrecognised format"}])
             request_hash = hashlib.sha256(

@@ -90,6 +90,11 @@ def test_refused_at_upload(client, case):
     assert_problem(post(client, data, params), status, slug)
 
 
+def test_a_recognised_foreign_format_says_what_it_is(client):
+    body = assert_problem(post(client, b"PK\x03\x04" + bytes(200), name="scan.zip"), 415, "unsupported-format")
+    assert "ZIP archive" in body["detail"] and "unpack" in body["detail"]
+
+
 def test_no_file_part(client):
     r = client.post("/v1/jobs", data={"params": "{}"}, files={"other": ("x", b"1 2 3", "text/plain")})
     assert_problem(r, 422, "missing-file")
