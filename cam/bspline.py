@@ -1,0 +1,113 @@
+"""Tensor-product B-spline surfaces: the record every later stage shares, and its evaluation.
+
+`make_bspline_surface` validates once; `BSplineSurface.evaluate` gives points
+and partial derivatives (for curvature and normals) through SciPy's `NdBSpline`.
+Coordinates are millimetres in the part frame; parameters run over the
+clamped knot span, normally [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import NdBSpline
+
+
+@dataclass(frozen=True, eq=False)
+class BSplineSurface:
+    """A non-rational B-spline surface.
+
+    degree: (p, q); knots_u: float64 (nu + p + 1,), knots_v: float64 (nv + q + 1,), both clamped;
+    control_points: float64 (nu, nv, 3) in mm, index [i, j] along u then v.
+    """
+
+    degree: tuple[int, int]
+    knots_u: np.ndarray
+    knots_v: np.ndarray
+    control_points: np.ndarray
+    _spline: NdBSpline = field(repr=False, compare=False)
+
+    @property
+    def domain(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        p, q = self.degree
+        return ((float(self.knots_u[p]), float(self.knots_u[-p - 1])),
+                (float(self.knots_v[q]), float(self.knots_v[-q - 1])))
+
+    def evaluate(self, u: np.ndarray, v: np.ndarray, *, du: int = 0, dv: int = 0) -> np.ndarray:
+        """Points (du = dv = 0) or partial derivatives ∂^(du+dv)S/∂u^du∂v^dv at parameters.
+
+        u, v: float arrays of one shape (...); returns float64 (..., 3), mm per parameter unit^(du+dv).
+        """
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
+        if u.shape != v.shape:
+            raise ValueError(f"u and v must have one shape, got {u.shape} and {v.shape}")
+        (u0, u1), (v0, v1) = self.domain
+        # Clip by a hair: round-off just outside the clamped span would extrapolate.
+        uv = np.stack([np.clip(u, u0, u1), np.clip(v, v0, v1)], axis=-1).reshape(-1, 2)
+        out = self._spline(uv, nu=(du, dv))
+        return np.asarray(out, dtype=np.float64).reshape(u.shape + (3,))
+
+    def normals(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Unit normals S_u × S_v, float64 (..., 3); NaN where the surface is degenerate."""
+        n = np.cross(self.evaluate(u, v, du=1), self.evaluate(u, v, dv=1))
+        length = np.linalg.norm(n, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(length > 0, n / length, np.nan)
+
+    def to_json(self) -> dict[str, Any]:
+        """DESIGN's `surfaces.json` fields for one surface (without `patch` and errors)."""
+        return {"degree": list(self.degree), "knots_u": self.knots_u.tolist(), "knots_v": self.knots_v.tolist(),
+                "control_points": self.control_points.tolist()}
+
+
+def _check_knots(name: str, knots: np.ndarray, degree: int, count: int) -> None:
+    if knots.ndim != 1 or knots.size != count + degree + 1:
+        raise ValueError(f"{name} needs {count + degree + 1} values for {count} control points of degree "
+                         f"{degree}, got {knots.size}")
+    if not np.all(np.isfinite(knots)) or np.any(np.diff(knots) < 0):
+        raise ValueError(f"{name} must be finite and non-decreasing")
+    if np.any(knots[: degree + 1] != knots[0]) or np.any(knots[-degree - 1:] != knots[-1]):
+        raise ValueError(f"{name} must be clamped: its first and last {degree + 1} values repeated")
+    if knots[-1] <= knots[0]:
+        raise ValueError(f"{name} spans no interval: [{knots[0]}, {knots[-1]}]")
+    inner = knots[degree + 1: -degree - 1]
+    if inner.size and np.max(np.unique(inner, return_counts=True)[1]) > degree:
+        raise ValueError(f"{name} has an interior knot repeated more than {degree} times (a break in the surface)")
+
+
+def make_bspline_surface(control_points: Any, knots_u: Any, knots_v: Any, *,
+                         degree: tuple[int, int] = (3, 3)) -> BSplineSurface:
+    """Build a validated surface; raises ValueError naming what is wrong."""
+    cp = np.asarray(control_points, dtype=np.float64)
+    if cp.ndim != 3 or cp.shape[2] != 3:
+        raise ValueError(f"control_points must have shape (nu, nv, 3), got {cp.shape}")
+    if not np.all(np.isfinite(cp)):
+        raise ValueError("control_points contain NaN or Inf")
+    p, q = (int(d) for d in degree)
+    if p < 1 or q < 1:
+        raise ValueError(f"degrees must be at least 1, got {degree}")
+    if cp.shape[0] <= p or cp.shape[1] <= q:
+        raise ValueError(f"degree {degree} needs more than {p} x {q} control points, got {cp.shape[:2]}")
+    ku = np.asarray(knots_u, dtype=np.float64)
+    kv = np.asarray(knots_v, dtype=np.float64)
+    _check_knots("knots_u", ku, p, cp.shape[0])
+    _check_knots("knots_v", kv, q, cp.shape[1])
+    spline = NdBSpline((ku, kv), cp, (p, q), extrapolate=False)
+    return BSplineSurface(degree=(p, q), knots_u=ku, knots_v=kv, control_points=cp, _spline=spline)
+
+
+def clamped_uniform_knots(count: int, degree: int = 3) -> np.ndarray:
+    """Clamped uniform knots on [0, 1] for `count` control points: float64 (count + degree + 1,)."""
+    if count <= degree:
+        raise ValueError(f"{count} control points are too few for degree {degree}")
+    inner = np.linspace(0.0, 1.0, count - degree + 1)
+    return np.concatenate([np.zeros(degree), inner, np.ones(degree)])
+
+
+def surface_from_json(data: dict[str, Any]) -> BSplineSurface:
+    """Inverse of `BSplineSurface.to_json` (reads one entry of `surfaces.json`)."""
+    return make_bspline_surface(data["control_points"], data["knots_u"], data["knots_v"],
+                                degree=tuple(data.get("degree", (3, 3))))
