@@ -15,6 +15,7 @@ from pathlib import Path
 
 from python_multipart import MultipartParser
 from python_multipart.multipart import parse_options_header
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
 from service.problems import Problem
@@ -67,6 +68,8 @@ async def receive_upload(request: Request, *, tmp_dir: Path, max_bytes: int) -> 
     up = Upload()
     digest = hashlib.sha256()
     head = bytearray()
+    pending: list[bytes] = []  # file bytes parsed from the last network chunk, written off the event loop
+    done: list = []            # file handles whose part ended, closed after their bytes are written
     state: dict = {"name": None, "filename": None, "fh": None, "buf": bytearray(), "headers": {}, "hname": b""}
 
     def on_part_begin() -> None:
@@ -104,7 +107,7 @@ async def receive_upload(request: Request, *, tmp_dir: Path, max_bytes: int) -> 
             digest.update(chunk)
             if len(head) < HEAD_BYTES:
                 head.extend(chunk[: HEAD_BYTES - len(head)])
-            state["fh"].write(chunk)
+            pending.append(chunk)
         elif state["name"] == "params":
             state["buf"] += chunk
             if len(state["buf"]) > MAX_PARAMS_BYTES:
@@ -113,7 +116,7 @@ async def receive_upload(request: Request, *, tmp_dir: Path, max_bytes: int) -> 
 
     def on_part_end() -> None:
         if state["fh"] is not None:
-            state["fh"].close()
+            done.append(state["fh"])
             state["fh"] = None
         if state["name"] == "params":
             up.params_text = bytes(state["buf"]).decode("utf-8", "replace")
@@ -134,25 +137,36 @@ async def receive_upload(request: Request, *, tmp_dir: Path, max_bytes: int) -> 
             if received > max_bytes + _SLACK:
                 raise _too_large(max_bytes)
             parser.write(chunk)
+            await _flush(state, pending, done)
         parser.finalize()
+        await _flush(state, pending, done)
         if not state.get("ended"):
             raise ValueError("the body ends before the closing boundary (upload cut off?)")
     except Problem:
-        _close(state)
+        _close(state, done)
         up.discard()
         raise
     except Exception as exc:  # the parser's own errors: malformed framing
-        _close(state)
+        _close(state, done)
         up.discard()
         raise Problem(400, "malformed-multipart", "Malformed multipart body",
                       f"the multipart/form-data body could not be parsed: {exc}") from None
-    _close(state)
+    _close(state, done)
     up.sha256 = digest.hexdigest()
     up.head = bytes(head)
     return up
 
 
-def _close(state: dict) -> None:
-    if state.get("fh") is not None:
-        state["fh"].close()
-        state["fh"] = None
+async def _flush(state: dict, pending: list[bytes], done: list) -> None:
+    fh = done[0] if done else state["fh"]  # one file part per request: the bytes belong to it
+    if pending and fh is not None:
+        data = b"".join(pending)
+        pending.clear()
+        await run_in_threadpool(fh.write, data)
+
+
+def _close(state: dict, done: list) -> None:
+    for fh in done + ([state["fh"]] if state.get("fh") is not None else []):
+        fh.close()
+    done.clear()
+    state["fh"] = None

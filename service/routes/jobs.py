@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Header, Query, Request, Response
+from starlette.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import and_, delete, or_, select
 from sqlalchemy.exc import IntegrityError
@@ -19,7 +20,7 @@ from sqlalchemy.orm import Session
 
 from cam.io.formats import FORMAT_EXTENSIONS, describe_unsupported, sniff_format
 from service import jobs as jobstore
-from service.db import IdempotencyKey, Job
+from service.db import IdempotencyKey, Job, get_sessionmaker
 from service.deps import QueueDep, SessionDep, SettingsDep, StoreDep
 from service.params import JobParams, merge_params
 from service.pipeline import load_stages
@@ -28,7 +29,7 @@ from service.problems import Problem, validation_errors
 from service.queue import enqueue_stages, revoke
 from service.schemas import JobList, JobOut, JobStatus, ProblemOut, RerunIn
 from service.store import ArtifactStore
-from service.upload import receive_upload
+from service.upload import Upload, receive_upload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -124,86 +125,113 @@ def _location(response: Response, job_id: str) -> None:
     response.headers["Location"] = f"/v1/jobs/{job_id}"
 
 
+def _reserve_key(Session, key: str) -> bool:
+    """Insert the key as `creating`; False when it exists and is done (a replay), 409 while in progress."""
+    with Session() as session:
+        try:
+            session.add(IdempotencyKey(key=key, state="creating"))
+            session.commit()
+            return True
+        except IntegrityError:
+            session.rollback()
+            row = session.get(IdempotencyKey, key)
+            if row is None or row.state == "creating":
+                raise Problem(409, "idempotency-in-progress", "Request in progress",
+                              "a request with this Idempotency-Key is still being processed; retry shortly") from None
+            return False
+
+
+def _release_key(Session, key: str) -> None:
+    with Session() as session:
+        session.execute(delete(IdempotencyKey).where(IdempotencyKey.key == key))
+        session.commit()
+
+
+def _check_upload(upload: Upload) -> tuple[dict[str, Any], str]:
+    """The validated params and the sniffed format of a received upload, or a 4xx problem."""
+    if upload.path is None:
+        raise Problem(422, "missing-file", "Missing file",
+                      "the request has no `file` part; send the point cloud or mesh as `file`",
+                      errors=[{"field": "file", "message": "required"}])
+    if upload.size == 0:
+        raise Problem(422, "empty-file", "Empty file", "the uploaded file is empty",
+                      errors=[{"field": "file", "message": "empty"}])
+    params = _params_from_text(upload.params_text)
+    fmt = sniff_format(upload.head, total_size=upload.size)
+    if fmt is None:
+        looks_like = describe_unsupported(upload.head)
+        raise Problem(415, "unsupported-format", "Unsupported file format",
+                      f"{upload.filename or 'the upload'} is not a point cloud or mesh format we read"
+                      + (f" (it looks like {looks_like})" if looks_like else "")
+                      + ": send PLY, XYZ/PTS/TXT/CSV, PCD, OBJ or STL (the format is read from the content, "
+                      "not the extension)",
+                      errors=[{"field": "file", "message": "unrecognised format"}])
+    return params, fmt
+
+
+def _create_from_upload(Session, store: ArtifactStore, queue, settings, upload: Upload,
+                        key: str | None, key_is_new: bool) -> tuple[str, dict[str, Any]]:
+    """Blocking part of job creation (database, store, broker); returns (job id, response body)."""
+    with Session() as session:
+        try:
+            try:
+                params, fmt = _check_upload(upload)
+                request_hash = hashlib.sha256((upload.sha256 + json.dumps(params, sort_keys=True)).encode()).hexdigest()
+                if key is not None and not key_is_new:
+                    row = session.get(IdempotencyKey, key)
+                    if row.request_hash != request_hash:
+                        raise Problem(422, "idempotency-key-reused", "Idempotency-Key reused",
+                                      "this Idempotency-Key was used with a different file or parameters")
+                    return row.job_id, row.response  # the first response, replayed as it was sent
+                store.put(upload.path, sha256=upload.sha256, move=True)
+            finally:
+                upload.discard()
+            job = _start_job(session, store, settings, input_name=upload.filename or "upload",
+                             input_sha256=upload.sha256, input_size=upload.size, input_format=fmt, params=params)
+            if key is not None:
+                row = session.get(IdempotencyKey, key)
+                row.request_hash, row.job_id = request_hash, job.id
+            session.commit()
+            _enqueue(session, queue, settings, job)
+        except BaseException:
+            session.rollback()
+            if key is not None and key_is_new:
+                _release_key(Session, key)
+            raise
+        session.refresh(job)
+        out = job_out(job).model_dump(mode="json")
+        if key is not None:
+            row = session.get(IdempotencyKey, key)
+            row.state, row.response = "done", out
+            session.commit()
+        return job.id, out
+
+
 @router.post("", status_code=202, response_model=JobOut, responses=_ERRORS, openapi_extra=_UPLOAD_SCHEMA,
              summary="Upload a point cloud or mesh and start a job")
-async def create_job(request: Request, response: Response, session: SessionDep, store: StoreDep,
-                     queue: QueueDep, settings: SettingsDep,
+async def create_job(request: Request, response: Response, store: StoreDep, queue: QueueDep,
+                     settings: SettingsDep,
                      idempotency_key: Annotated[str | None, Header(max_length=255)] = None) -> JobOut:
-    key_row_created = False
+    # Only the streaming stays on the event loop; database, store and broker calls block, so they
+    # run in the threadpool with a session opened and closed there (a session held across the
+    # response would pin a pooled connection until a teardown that needs this very loop).
+    Session = get_sessionmaker(settings.resolved_database_url)
+    key_is_new = False
     if idempotency_key is not None:
         if not idempotency_key.strip() or not idempotency_key.isprintable():
             raise Problem(400, "invalid-idempotency-key", "Invalid Idempotency-Key",
                           "Idempotency-Key must be 1 to 255 printable characters")
-        try:
-            session.add(IdempotencyKey(key=idempotency_key, state="creating"))
-            session.commit()
-            key_row_created = True
-        except IntegrityError:
-            session.rollback()
-            row = session.get(IdempotencyKey, idempotency_key)
-            if row is not None and row.state == "creating":
-                raise Problem(409, "idempotency-in-progress", "Request in progress",
-                              "a request with this Idempotency-Key is still being processed; retry shortly") from None
+        key_is_new = await run_in_threadpool(_reserve_key, Session, idempotency_key)
     try:
         upload = await receive_upload(request, tmp_dir=settings.uploads_dir, max_bytes=settings.max_upload_bytes)
-        try:
-            if upload.path is None:
-                raise Problem(422, "missing-file", "Missing file",
-                              "the request has no `file` part; send the point cloud or mesh as `file`",
-                              errors=[{"field": "file", "message": "required"}])
-            if upload.size == 0:
-                raise Problem(422, "empty-file", "Empty file", "the uploaded file is empty",
-                              errors=[{"field": "file", "message": "empty"}])
-            params = _params_from_text(upload.params_text)
-            fmt = sniff_format(upload.head, total_size=upload.size)
-            if fmt is None:
-                looks_like = describe_unsupported(upload.head)
-                raise Problem(415, "unsupported-format", "Unsupported file format",
-                              f"{upload.filename or 'the upload'} is not a point cloud or mesh format we read"
-                              + (f" (it looks like {looks_like})" if looks_like else "")
-                              + ": send PLY, XYZ/PTS/TXT/CSV, PCD, OBJ or STL (the format is read from the content, "
-                              "not the extension)",
-                              errors=[{"field": "file", "message": "unrecognised format"}])
-            request_hash = hashlib.sha256(
-                (upload.sha256 + json.dumps(params, sort_keys=True)).encode()).hexdigest()
-            if idempotency_key is not None and not key_row_created:
-                row = session.get(IdempotencyKey, idempotency_key)
-                if row.request_hash != request_hash:
-                    raise Problem(422, "idempotency-key-reused", "Idempotency-Key reused",
-                                  "this Idempotency-Key was used with a different file or parameters")
-                # The first response, replayed as it was sent.
-                _location(response, row.job_id)
-                return JobOut.model_validate(row.response)
-            store.put(upload.path, sha256=upload.sha256, move=True)
-        finally:
-            upload.discard()
-        job = _start_job(session, store, settings, input_name=upload.filename or "upload",
-                         input_sha256=upload.sha256, input_size=upload.size, input_format=fmt, params=params)
-        if idempotency_key is not None:
-            row = session.get(IdempotencyKey, idempotency_key)
-            row.request_hash, row.job_id = request_hash, job.id
-        session.commit()
     except BaseException:
-        session.rollback()
-        if key_row_created:
-            session.execute(delete(IdempotencyKey).where(IdempotencyKey.key == idempotency_key))
-            session.commit()
+        if key_is_new:
+            await run_in_threadpool(_release_key, Session, idempotency_key)
         raise
-    try:
-        _enqueue(session, queue, settings, job)
-    except Problem:
-        if key_row_created:
-            session.execute(delete(IdempotencyKey).where(IdempotencyKey.key == idempotency_key))
-            session.commit()
-        raise
-    session.refresh(job)
-    out = job_out(job)
-    if idempotency_key is not None:
-        row = session.get(IdempotencyKey, idempotency_key)
-        row.state, row.response = "done", out.model_dump(mode="json")
-        session.commit()
-    _location(response, job.id)
-    return out
+    job_id, body = await run_in_threadpool(_create_from_upload, Session, store, queue, settings, upload,
+                                           idempotency_key, key_is_new)
+    _location(response, job_id)
+    return JobOut.model_validate(body)
 
 
 def _encode_cursor(job: Job) -> str:
