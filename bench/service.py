@@ -271,7 +271,7 @@ def latency_phases(server: Server, n: int, clients: int, safe_clients: int, time
 
     out["healthz"] = _load(server, healthz, n, clients, 200, timeout_s, rt)
     out["get"] = _load(server, get_job, n, clients, 200, timeout_s, rt)
-    # Last, because it can leave the server stalled (see the report): the check after it shows that.
+    # Last, with a healthz check after it: this phase once hung the API (a pinned pool connection).
     out["post"] = _load(server, post_job, n, clients, 202, min(timeout_s, 45.0), rt)
     out["healthz_after"] = _load(server, healthz, n, clients, 200, 15.0, rt)
     for v in out.values():
@@ -556,7 +556,7 @@ def render(lat: dict, ups: list[dict], args, m: dict, total_s: float, server_err
          f"the table's order. POST sends a distinct 200-point `x y z` cloud each time with `params` = `{{}}`; GET "
          f"reads a random one of the jobs created by the POST phase before it. POST is measured at "
          f"{args.safe_clients} clients as well as at {args.clients}, and the {args.clients}-client POST phase runs "
-         f"last, because at that concurrency the service can stall (see the notes). "
+         f"last, with a `/healthz` check after it: this phase once hung the API (a pooled connection pinned by a session torn down on the blocked event loop, fixed in the commit "create_job: database, store and broker work off the event loop"), and the check shows it does not any more. "
          f"For memory, a fresh server (same settings) gets a {args.upload_mb} MiB binary little-endian PLY "
          f"(float32 x y z), written to the temporary directory first and streamed as the `file` part of a "
          f"hand-built multipart body from a generator reading 1 MiB at a time (the benchmark's own RSS grew by at "
