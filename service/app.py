@@ -12,6 +12,7 @@ from service import problems
 from service.config import Settings, get_settings
 from service.db import get_engine
 from service.deps import require_api_key
+from service.pipeline import load_stages
 from service.reconciler import Reconciler
 from service.routes import artifacts, health, jobs
 
@@ -21,6 +22,7 @@ log = logging.getLogger(__name__)
 
 def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> FastAPI:
     settings = settings or get_settings()
+    load_stages(settings.stage_plugins, settings.pipeline)  # a misconfigured pipeline stops start-up, not a request
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):

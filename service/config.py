@@ -78,6 +78,11 @@ class Settings(BaseSettings):
         validation_alias=AliasChoices("CLOUD2CNC_STAGE_PLUGINS", "stage_plugins"),
         description="Comma-separated modules whose STAGES are appended to the pipeline (tests use it).",
     )
+    pipeline: str = Field(
+        default="",
+        validation_alias=AliasChoices("CLOUD2CNC_PIPELINE", "pipeline"),
+        description="Comma-separated stages a job runs (empty: all of them, in DESIGN order).",
+    )
 
     @property
     def max_upload_bytes(self) -> int:

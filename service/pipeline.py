@@ -50,14 +50,24 @@ STAGES: tuple[StageSpec, ...] = (
 )
 
 
-def load_stages(plugins: str = "") -> tuple[StageSpec, ...]:
-    """The built-in stages plus those of each comma-separated plugin module's `STAGES`."""
+def load_stages(plugins: str = "", only: str = "") -> tuple[StageSpec, ...]:
+    """The built-in stages plus those of each comma-separated plugin module's `STAGES`.
+
+    `only`, when not empty, is a comma-separated subset of their names: the pipeline a job runs
+    (an operator's meshing-only service runs `ingest,reconstruct,denoise`). Order stays DESIGN's.
+    """
     stages = list(STAGES)
     for module_name in filter(None, (p.strip() for p in plugins.split(","))):
         stages.extend(importlib.import_module(module_name).STAGES)
     names = [s.name for s in stages]
     if len(set(names)) != len(names):
         raise ValueError(f"duplicate stage names in the pipeline: {names}")
+    wanted = [n.strip() for n in only.split(",") if n.strip()]
+    if wanted:
+        unknown = sorted(set(wanted) - set(names))
+        if unknown:
+            raise ValueError(f"CLOUD2CNC_PIPELINE names unknown stages {unknown}; known: {', '.join(names)}")
+        stages = [s for s in stages if s.name in wanted]
     return tuple(stages)
 
 

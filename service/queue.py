@@ -84,7 +84,7 @@ def enqueue_stages(app: Celery, settings: Settings, job_id: str, stages: Iterabl
     """`enqueue_chain` for (stage name, task id) pairs, with each stage's own time limit."""
     from service.pipeline import load_stages, time_limit_s
 
-    specs = {s.name: s for s in load_stages(settings.stage_plugins)}
+    specs = {s.name: s for s in load_stages(settings.stage_plugins, settings.pipeline)}
     enqueue_chain(app, job_id, [(name, task_id, time_limit_s(specs[name], settings.stage_time_limit_s))
                                 for name, task_id in stages])
 

@@ -70,6 +70,7 @@ def backend(request, tmp_path: Path) -> Iterator[Backend]:
         "CLOUD2CNC_STAGE_LEASE_S": "2",
         "CLOUD2CNC_RECONCILE_INTERVAL_S": "0.5",
         "CLOUD2CNC_STAGE_PLUGINS": "tests.plugins.dwell",
+        "CLOUD2CNC_PIPELINE": "ingest,dwell",
         "CLOUD2CNC_MIN_POINTS": "10",
     }
     b = Backend(request.param, env)
@@ -94,6 +95,7 @@ def embedded(tmp_path: Path) -> Backend:
     return Backend("embedded", {
         "CLOUD2CNC_DATA_DIR": str(tmp_path / "data"),
         "CLOUD2CNC_STAGE_PLUGINS": "tests.plugins.dwell",
+        "CLOUD2CNC_PIPELINE": "ingest,dwell",
         "CLOUD2CNC_MIN_POINTS": "10",
     })
 

@@ -24,7 +24,15 @@ class StageCanceled(Exception):
 
 
 class StageSkipped(Exception):
-    """The stage does not apply to this job (its message says why)."""
+    """The stage does not apply to this job (its message says why).
+
+    `outputs` are stored all the same: a skipped stage may pass its input on
+    under its own output name (denoise disabled passes `mesh_raw.ply` on as `mesh.ply`).
+    """
+
+    def __init__(self, message: str = "", *, outputs: dict[str, Path] | None = None) -> None:
+        super().__init__(message)
+        self.outputs = dict(outputs or {})
 
 
 @dataclass

@@ -62,7 +62,7 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
     if not input_path.is_file():
         raise ValueError(f"input file not found: {input_path}")
     params = JobParams.model_validate(params).model_dump(mode="json")
-    stages = load_stages(settings.stage_plugins)
+    stages = load_stages(settings.stage_plugins, settings.pipeline)
     names = stage_names_until(stages, until)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / "params.json", params)
@@ -82,7 +82,11 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
         try:
             outputs = _implementation(spec)(ctx)
         except StageSkipped as exc:
-            reports.append(StageReport(spec.name, "skipped", time.perf_counter() - t0, error=str(exc) or None))
+            for name, path in exc.outputs.items():
+                Path(path).replace(out_dir / name)  # passed on (denoise disabled: mesh.ply)
+            shutil.rmtree(scratch, ignore_errors=True)
+            reports.append(StageReport(spec.name, "skipped", time.perf_counter() - t0, tuple(exc.outputs),
+                                       error=str(exc) or None))
             bar.end(f"skipped {exc}")
             continue
         except (StageError, ValueError, StageCanceled) as exc:

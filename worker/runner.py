@@ -77,7 +77,7 @@ class _Heartbeat:
 def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
     Session = get_sessionmaker(settings.resolved_database_url)
     store = ArtifactStore(settings.artifacts_dir)
-    specs = {s.name: s for s in load_stages(settings.stage_plugins)}
+    specs = {s.name: s for s in load_stages(settings.stage_plugins, settings.pipeline)}
     spec = specs.get(stage_name)
     worker = f"{socket.gethostname()}:{os.getpid()}"
 
@@ -98,7 +98,9 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
         if claim is None:
             return Outcome.STOP
         params = dict(job.params)
-        available = {a.name: a.sha256 for a in job.artifacts}
+        # Only what earlier stages wrote: a later stage may reuse a name (plan rewrites setup.json).
+        earlier = {s.name for s in previous}
+        available = {a.name: a.sha256 for a in job.artifacts if a.stage in earlier}
         input_name = _input_name(job)
         available["input"] = job.input_sha256
 
@@ -171,8 +173,15 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
             try:
                 outputs = _implementation(spec)(ctx)
             except StageSkipped as exc:
-                finish(status="skipped", message=str(exc) or None)
-                return Outcome.CONTINUE
+                passed = _store_outputs(store, spec, exc.outputs)
+                with Session.begin() as session:
+                    ok = jobs.finish_stage(session, job_id, claim.token, status="skipped",
+                                           message=str(exc) or None)
+                    if ok:
+                        _add_artifacts(session, job_id, stage_name, passed)
+                if not ok:
+                    _drop_unreferenced(Session, store, [o["sha256"] for o in passed.values()])
+                return Outcome.CONTINUE if ok else Outcome.STOP
             except StageCanceled:
                 finish(status="canceled", message="canceled by the user")
                 return Outcome.STOP

@@ -97,7 +97,7 @@ def _store_json(store: ArtifactStore, obj: Any, tmp_dir: Path) -> tuple[str, int
 
 def _start_job(session: Session, store: ArtifactStore, settings, *, input_name: str, input_sha256: str,
                input_size: int, input_format: str, params: dict[str, Any], parent_id: str | None = None) -> Job:
-    stages = [s.name for s in load_stages(settings.stage_plugins)]
+    stages = [s.name for s in load_stages(settings.stage_plugins, settings.pipeline)]
     job = jobstore.create_job(session, input_name=input_name, input_sha256=input_sha256, input_size=input_size,
                               input_format=input_format, params=params, stage_names=stages, parent_id=parent_id)
     jobstore.add_artifact(session, job.id, name="input" + FORMAT_EXTENSIONS[input_format], stage="upload",

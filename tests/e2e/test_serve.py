@@ -28,6 +28,9 @@ def test_serve_runs_a_job_and_stops_cleanly_on_ctrl_c(tmp_path):
     port = _free_port()
     env = {k: v for k, v in os.environ.items()
            if k not in ("DATABASE_URL", "CELERY_BROKER_URL", "CLOUD2CNC_API_KEY", "CLOUD2CNC_STAGE_PLUGINS")}
+    # What is tested here is serve itself (API + worker process, a job through the broker, Ctrl-C); the
+    # geometry stages have their own tests, so the job runs ingest alone and the test stays short.
+    env["CLOUD2CNC_PIPELINE"] = "ingest"
     proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
                              "--data-dir", str(tmp_path / "data")], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -17,7 +17,7 @@ def cli(*args, cwd=ROOT):
 def test_run_writes_design_artifacts(tmp_path):
     out = tmp_path / "out"
     r = cli("run", str(ROOT / "examples" / "dome_block.xyz"), "--out", str(out), "--set", "tool.radius_mm=2",
-            "--set", "ingest.units=mm")
+            "--set", "ingest.units=mm", "--until", "ingest")
     assert r.returncode == 0, r.stderr
     assert {"params.json", "cloud.ply", "ingest.json"} <= {p.name for p in out.iterdir()}
     assert json.loads((out / "params.json").read_text())["tool"]["radius_mm"] == 2

@@ -25,7 +25,9 @@ from worker.runner import run_stage
 
 @pytest.fixture
 def settings(tmp_path: Path) -> Settings:
-    return Settings(data_dir=tmp_path / "data", min_points=10, max_points=5000, max_upload_mb=1.0)
+    # These cases are about ingest; the jobs run only that stage so that "succeeded" means ingest did.
+    return Settings(data_dir=tmp_path / "data", min_points=10, max_points=5000, max_upload_mb=1.0,
+                    pipeline="ingest")
 
 
 @pytest.fixture

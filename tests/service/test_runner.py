@@ -13,7 +13,8 @@ from worker.runner import Outcome, run_stage
 
 @pytest.fixture
 def setup(tmp_path):
-    settings = Settings(data_dir=tmp_path / "d", min_points=10, stage_plugins="tests.plugins.broken")
+    settings = Settings(data_dir=tmp_path / "d", min_points=10, stage_plugins="tests.plugins.broken",
+                        pipeline="ingest,inspect")
     with TestClient(create_app(settings, reconcile=False)) as client:
         job = client.post("/v1/jobs", files={"file": ("a.xyz", xyz_bytes(50))}).json()
         yield settings, client, job["id"]
@@ -32,7 +33,8 @@ def test_failed_stage_keeps_its_inspection_output(setup):
 
 
 def test_a_bug_in_a_stage_fails_it_with_a_reference_and_no_trace(tmp_path):
-    settings = Settings(data_dir=tmp_path / "c", min_points=10, stage_plugins="tests.plugins.crash")
+    settings = Settings(data_dir=tmp_path / "c", min_points=10, stage_plugins="tests.plugins.crash",
+                        pipeline="ingest,crash")
     with TestClient(create_app(settings, reconcile=False)) as client:
         job_id = client.post("/v1/jobs", files={"file": ("a.xyz", xyz_bytes(50))}).json()["id"]
         run_stage(settings, job_id, "ingest")
