@@ -1,0 +1,69 @@
+"""A closed-form signed distance estimate from oriented points, used to start the grid field.
+
+Starting IGR from a sphere spends most of a CPU budget moving the surface to
+the points; starting it from this estimate lets the IGR loss spend its
+iterations on what it is good at (sharp, distance-like fields through the
+points). The estimate is the distance to the nearest points' tangent planes,
+blended with Gaussian weights taken relative to the nearest point so that they
+never all underflow far from the cloud (where the sign is that of the nearest
+oriented sample, which is correct for a closed, densely sampled surface).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["plane_distance"]
+
+
+def plane_distance(
+    queries: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    *,
+    spacing: float,
+    k: int = 8,
+    workers: int = 1,
+    tree: cKDTree | None = None,
+    max_distance: float = np.inf,
+    should_cancel: Callable[[], bool] | None = None,
+) -> np.ndarray:
+    """Blended point-to-tangent-plane distance, float64 (m,), same unit as the points.
+
+    Parameters
+    ----------
+    queries
+        (m, 3) where to evaluate.
+    points, normals
+        (n, 3) samples and their unit outward normals.
+    spacing
+        Typical sample spacing; the blending width is twice this.
+    k
+        Nearest samples blended.
+    max_distance
+        Only samples this close are blended; a query with none gets NaN. The
+        bound makes the k-d tree prune, which matters for the many grid
+        vertices far from the cloud (unbounded queries there cost ten times more).
+    """
+    tree = tree if tree is not None else cKDTree(points)
+    k = int(min(k, len(points)))
+    out = np.empty(len(queries))
+    width2 = (2.0 * spacing) ** 2
+    step = 65_536  # about a second per chunk on a busy core, so a cancel is seen promptly
+    for start in range(0, len(queries), step):
+        if should_cancel is not None:
+            should_cancel()
+        q = queries[start:start + step]
+        dist, idx = tree.query(q, k=k, workers=workers, distance_upper_bound=max_distance)
+        if k == 1:
+            dist, idx = dist[:, None], idx[:, None]
+        found = np.isfinite(dist)
+        idx = np.where(found, idx, 0)
+        with np.errstate(invalid="ignore"):
+            w = np.where(found, np.exp(-(dist ** 2 - dist[:, :1] ** 2) / width2), 0.0)
+            plane = np.einsum("mkj,mkj->mk", q[:, None, :] - points[idx], normals[idx])
+            out[start:start + step] = (w * plane).sum(axis=1) / w.sum(axis=1)
+    return out

@@ -1,0 +1,293 @@
+"""Point cloud to watertight triangle mesh with IGR (Gropp et al. 2020): the public entry point.
+
+The cloud is centred and scaled into the unit ball, normals are checked or
+estimated, a signed distance f is trained with the IGR loss, and its zero
+level set is extracted with marching cubes and mapped back to the input's
+frame and units.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from cam.reconstruct.extract import extract_surface
+from cam.reconstruct.fields import GridField, IGRNetwork
+from cam.reconstruct.normals import check_normals, estimate_normals
+from cam.reconstruct.presets import resolve_options
+from cam.reconstruct.prior import plane_distance
+from cam.reconstruct.train import TrainSettings, train_igr
+
+__all__ = ["Reconstruction", "ReconstructionCanceled", "reconstruct_surface"]
+
+MIN_POINTS = 100
+
+
+class ReconstructionCanceled(Exception):
+    """``should_cancel`` returned True; the reconstruction stopped early."""
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """A reconstructed surface.
+
+    vertices: float64 (v, 3), the input's units and frame.
+    faces: int64 (f, 3), outward (counter-clockwise seen from outside).
+    report: JSON-ready dict (see :func:`reconstruct_surface`).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    report: dict[str, Any]
+
+
+def reconstruct_surface(
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    preset: str = "fast",
+    iterations: int | None = None,
+    batch_size: int | None = None,
+    grid_cells: int | None = None,
+    width: int | None = None,
+    depth: int | None = None,
+    resolution: int | None = None,
+    learning_rate: float | None = None,
+    eikonal_weight: float = 0.1,
+    normal_weight: float = 1.0,
+    normals_k: int = 16,
+    max_faces: int | None = None,
+    seed: int | np.random.Generator = 0,
+    threads: int | None = None,
+    device: str = "auto",
+    progress: Callable[[float, str], None] | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> Reconstruction:
+    """Reconstruct a closed surface from a point cloud.
+
+    Parameters
+    ----------
+    points
+        (n, 3) finite coordinates, any unit (mm in the pipeline); n >= 100 distinct.
+    normals
+        (n, 3) outward normals (any non-zero length) or None to estimate them.
+    preset
+        ``"fast"`` (grid pyramid started from the oriented-plane distance; the
+        default, about a minute for 50k points on 2 CPU cores), ``"mlp"`` (the
+        paper's network at 4x256, sphere start) or ``"paper"`` (8x512, the
+        paper's sampling and schedule; meant for a GPU). See :mod:`cam.reconstruct.presets`.
+    iterations, batch_size, grid_cells, width, depth, resolution, learning_rate
+        Override the preset when given: Adam steps, cloud points per step,
+        finest grid cells along the longest side (fast), MLP width and depth
+        (mlp, paper), marching-cubes cells along the longest side, initial
+        learning rate (mlp: Adam's step; fast: the step as a fraction of each
+        grid level's cell), decaying to 1/100 of it.
+    eikonal_weight, normal_weight
+        lambda and tau of the IGR loss (paper: 0.1 and 1).
+    normals_k
+        Neighbours for normal estimation.
+    max_faces
+        Cap on the mesh's triangles: when marching cubes at ``resolution`` gives
+        more, the surface is extracted again on a coarser lattice sized to fit
+        (a closed mesh either way; the later stages' cost grows with the faces).
+        None: no cap.
+    seed
+        Seed (or a Generator that draws one); the same seed gives the same mesh on CPU.
+    threads
+        Torch and k-NN threads; None keeps torch's setting.
+    device
+        ``"auto"`` (CUDA when available), ``"cpu"`` or ``"cuda"``.
+    progress
+        ``progress(fraction, message)``, called at least once per iteration.
+    should_cancel
+        Polled every iteration and between phases; True stops with
+        :class:`ReconstructionCanceled`.
+
+    Returns
+    -------
+    :class:`Reconstruction`; its report holds ``points``, ``normals``
+    (``"given"`` or ``"estimated"`` and the estimate's details), ``preset``,
+    the effective ``options``, ``training`` (``iterations``, final loss
+    terms), ``mesh`` (vertex and face counts, ``watertight``, components) and
+    ``timings_s``.
+
+    Raises
+    ------
+    ValueError
+        With a message naming the problem: too few or only duplicate points,
+        a collinear or flat cloud, non-finite values, zero-length normals,
+        normals that cannot be oriented, or a diverging training run.
+    """
+    started = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    def poll() -> None:
+        if should_cancel is not None and should_cancel():
+            raise ReconstructionCanceled("reconstruction canceled")
+
+    opts = resolve_options(preset, iterations=iterations, batch_size=batch_size, grid_cells=grid_cells,
+                           width=width, depth=depth, resolution=resolution, learning_rate=learning_rate)
+    if not (np.isfinite(eikonal_weight) and eikonal_weight >= 0 and np.isfinite(normal_weight)
+            and normal_weight >= 0):
+        raise ValueError(f"eikonal_weight and normal_weight must be finite and >= 0, got {eikonal_weight} "
+                         f"and {normal_weight}")
+    if not 3 <= normals_k <= 200:
+        raise ValueError(f"normals_k must lie in [3, 200], got {normals_k}")
+    if max_faces is not None and max_faces < 1000:
+        raise ValueError(f"max_faces must be at least 1000 (or None), got {max_faces}")
+    if device not in ("auto", "cpu", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    pts = _check_points(points)
+    given = normals is not None
+    nrm = check_normals(normals, len(pts)) if given else None
+    if isinstance(seed, np.random.Generator):
+        seed = int(seed.integers(0, 2**31 - 1))
+    workers = threads or 1
+    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
+                       ("cpu" if device == "auto" else device))
+
+    # Normalise: centre of the box, scale so the farthest point is at radius 1.
+    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    scale = float(np.linalg.norm(pts - centre, axis=1).max())
+    unit = (pts - centre) / scale
+
+    t = time.perf_counter()
+    tree = cKDTree(unit)
+    kk = min(opts["sigma_k"], len(unit) - 1)
+    dist, _ = tree.query(unit, k=[2, kk + 1], workers=workers)
+    spacing = float(np.median(dist[:, 0]))
+    sigma = dist[:, 1]
+    normals_report: dict[str, Any] = {"source": "given" if given else "estimated"}
+    if nrm is None:
+        nrm, est = estimate_normals(unit, k=normals_k, workers=workers, should_cancel=poll)
+        normals_report.update(est)
+    timings["normals"] = time.perf_counter() - t
+    poll()
+
+    lo = unit.min(axis=0)
+    hi = unit.max(axis=0)
+    margin = 0.05 * float((hi - lo).max())
+    lo, hi = lo - margin, hi + margin
+
+    previous_threads = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
+    try:
+        t = time.perf_counter()
+        field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, poll)
+        timings["init"] = time.perf_counter() - t
+        gen = torch.Generator(device=dev).manual_seed(seed)
+        as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=dev)  # noqa: E731
+        settings = TrainSettings(iterations=opts["iterations"], batch_size=opts["batch_size"],
+                                 learning_rate=opts["learning_rate"], lr_final_ratio=opts["lr_final_ratio"],
+                                 schedule=opts["schedule"], lam=eikonal_weight, tau=normal_weight)
+        t = time.perf_counter()
+        training = train_igr(field, as_t(unit), as_t(nrm), as_t(sigma), (as_t(lo), as_t(hi)), settings,
+                             generator=gen, param_groups=groups,
+                             progress=(lambda f, m: progress(0.05 + 0.85 * f, m)) if progress else None,
+                             poll=poll)
+        timings["train"] = time.perf_counter() - t
+
+        def evaluate(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
+            with torch.no_grad():
+                if isinstance(field, GridField):
+                    return field.lattice([xs, ys, zs]).cpu().numpy()
+                q = as_t(np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), axis=-1).reshape(-1, 3))
+                # Chunks bound the MLP's activations (an 8x512 net holds 2 kB per point and layer).
+                f = torch.cat([field(c, with_grad=False)[0] for c in torch.split(q, 65536)])
+                return f.cpu().numpy().reshape(len(xs), len(ys), len(zs))
+
+        t = time.perf_counter()
+        if progress is not None:
+            progress(0.92, "extracting the surface")
+        verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=opts["resolution"],
+                                                    points=unit, poll=poll)
+        mesh_report["resolution"] = opts["resolution"]
+        if max_faces is not None and len(faces) > max_faces:
+            # Faces grow with the square of the resolution; 0.97 leaves room for the estimate's error.
+            coarser = max(16, int(opts["resolution"] * np.sqrt(max_faces / len(faces)) * 0.97))
+            if progress is not None:
+                progress(0.96, f"{len(faces)} faces at {opts['resolution']} cells; extracting at {coarser}")
+            verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=coarser, points=unit, poll=poll)
+            mesh_report["resolution"] = coarser
+        timings["extract"] = time.perf_counter() - t
+    finally:
+        torch.set_num_threads(previous_threads)
+
+    verts = verts * scale + centre
+    mesh_report.update({"vertices": int(len(verts)), "faces": int(len(faces)),
+                        "cell_units": mesh_report.pop("cell") * scale})
+    timings["total"] = time.perf_counter() - started
+    report = {
+        "points": int(len(pts)),
+        "normals": normals_report,
+        "preset": preset,
+        "options": {**opts, "eikonal_weight": eikonal_weight, "normal_weight": normal_weight,
+                    "normals_k": normals_k, "max_faces": max_faces, "seed": seed},
+        "device": str(dev),
+        "threads": torch.get_num_threads() if threads is None else threads,
+        "normalisation": {"centre": centre.tolist(), "scale": scale},
+        "training": training,
+        "mesh": mesh_report,
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+    }
+    return Reconstruction(vertices=verts, faces=faces, report=report)
+
+
+def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, poll):
+    """The field and its Adam parameter groups (per-level learning-rate factors for the grid)."""
+    if opts["field"] == "grid":
+        field = GridField(lo, hi, finest_cells=opts["grid_cells"], levels=opts["levels"]).to(dev)
+        # The coarsest level takes the prior everywhere (few vertices, so unbounded queries are
+        # cheap); the finest level adds the detail in a band around the cloud, where training acts.
+        coarse = plane_distance(field.vertices(0), unit, nrm, spacing=spacing, k=opts["prior_k"],
+                                workers=workers, tree=tree, should_cancel=poll)
+        field.set_level(0, torch.as_tensor(coarse))
+        fine_v = field.vertices(-1)
+        band = 4.0 * field.cell[-1]
+        fine = plane_distance(fine_v, unit, nrm, spacing=spacing, k=opts["prior_k"], workers=workers,
+                              tree=tree, max_distance=band, should_cancel=poll)
+        with torch.no_grad():
+            base = field.lattice([np.unique(fine_v[:, a]) for a in range(3)]).reshape(-1).double().cpu().numpy()
+        residual = np.where(np.isfinite(fine), fine - base, 0.0)
+        field.set_level(-1, torch.as_tensor(residual))
+        # Adam moves every touched vertex by about the learning rate whatever its gradient, so the
+        # step is set per level as a fraction of that level's cell: a fixed step would make the
+        # finest level's gradient (value differences over a small cell) noisy.
+        groups = [{"params": [p], "lr_scale": h} for p, h in zip(field.values, field.cell, strict=True)]
+        return field, groups
+    gen = torch.Generator().manual_seed(seed)
+    radius = float(np.linalg.norm(unit, axis=1).mean())
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        field = IGRNetwork(width=opts["width"], depth=opts["depth"], radius=radius, generator=gen)
+    return field.to(dev), None
+
+
+def _check_points(points: np.ndarray) -> np.ndarray:
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must be an (n, 3) array, got shape {pts.shape}")
+    if not np.isfinite(pts).all():
+        bad = int((~np.isfinite(pts).all(axis=1)).sum())
+        raise ValueError(f"{bad} of {len(pts)} points have non-finite coordinates (NaN/Inf); drop them first")
+    if len(pts) < MIN_POINTS:
+        raise ValueError(f"the cloud has {len(pts)} points; at least {MIN_POINTS} are needed to rebuild a surface")
+    distinct = len(np.unique(pts, axis=0))
+    if distinct < MIN_POINTS:
+        raise ValueError(f"the cloud has only {distinct} distinct points among {len(pts)} (the rest are "
+                         f"duplicates); at least {MIN_POINTS} distinct points are needed")
+    centred = pts - pts.mean(axis=0)
+    spread = np.linalg.svd(centred[:: max(1, len(pts) // 200_000)], compute_uv=False)
+    if spread[1] <= 1e-6 * spread[0]:
+        raise ValueError("the points are collinear (they lie on one line); a surface needs a scan of the "
+                         "part's faces, not a single line")
+    if spread[2] <= 1e-3 * spread[0]:
+        raise ValueError("the points are coplanar (they lie in one plane, thinner than 0.1 % of their size); "
+                         "a flat sheet of points encloses no volume, scan the part from all sides")
+    return pts
