@@ -1,0 +1,178 @@
+"""Quad remeshing: the quad file format, the checks and repairs, closest points, QuadriFlow in a child process."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from cam.closest import closest_points, point_triangle_closest
+from cam.io import ReadError, WriteError
+from cam.quadcheck import boundary_loops, inspect_quad_mesh, repair_quad_mesh
+from cam.quadio import read_quad_obj, write_ply_quads_colored, write_quad_obj
+from cam.quadmesh import face_areas, face_normals, quad_topology, vertex_fans
+from cam.quadshapes import quad_box, quad_grid, quad_torus
+
+
+def _signed_volume(v, f):
+    c = v[f].mean(axis=1)
+    return float((np.einsum("ij,ij->i", c, face_normals(v, f)) * face_areas(v, f)).sum() / 3)
+
+
+# --- quad files ---------------------------------------------------------------------------------------------
+
+def test_quad_obj_round_trip_is_exact(tmp_path):
+    v, f = quad_box((2, 3, 1), size=(10.1, 20.3, 0.7))
+    v = v + np.random.default_rng(0).normal(scale=1e-7, size=v.shape)
+    path = write_quad_obj(tmp_path / "q.obj", v, f, comments=["hello"])
+    v2, f2 = read_quad_obj(path)
+    assert np.array_equal(v, v2) and np.array_equal(f, f2)
+    assert path.read_text().startswith("# hello\n")
+    assert not list(tmp_path.glob(".*"))  # no temporary file left
+
+
+def test_quad_obj_reader_rejects_triangles_and_bad_indices(tmp_path):
+    (tmp_path / "t.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(ReadError, match="line 4: expected a quad"):
+        read_quad_obj(tmp_path / "t.obj")
+    (tmp_path / "b.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 9\n")
+    with pytest.raises(ReadError, match="index vertices"):
+        read_quad_obj(tmp_path / "b.obj")
+    (tmp_path / "n.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf -4/1 -3/2 -2/3 -1/4\n")
+    assert read_quad_obj(tmp_path / "n.obj")[1].tolist() == [[0, 1, 2, 3]]
+
+
+def test_coloured_ply_carries_colours_and_labels(tmp_path):
+    v, f = quad_grid(2, 1)
+    path = write_ply_quads_colored(tmp_path / "s.ply", v, f, np.array([[255, 0, 0], [0, 9, 0]]),
+                                   labels=np.array([3, -1]))
+    data = path.read_bytes()
+    header, body = data.split(b"end_header\n")
+    assert b"element face 2" in header and b"property int patch" in header
+    face = np.frombuffer(body[len(v) * 24:], dtype=[("n", "u1"), ("v", "<i4", (4,)), ("r", "u1"), ("g", "u1"),
+                                                    ("b", "u1"), ("p", "<i4")])
+    assert face["v"].tolist() == f.tolist() and face["p"].tolist() == [3, -1] and face["g"].tolist() == [0, 9]
+    with pytest.raises(WriteError, match="colors must be"):
+        write_ply_quads_colored(tmp_path / "x.ply", v, f, np.zeros((3, 3)))
+
+
+# --- connectivity, checks, repairs ----------------------------------------------------------------------------
+
+def test_topology_of_a_box():
+    v, f = quad_box((3, 2, 2))
+    topo = quad_topology(f, len(v))
+    assert (topo.twin >= 0).all() and np.array_equal(topo.twin[topo.twin], np.arange(len(topo.twin)))
+    assert len(topo.edges) == 2 * len(f)
+    assert sorted(np.bincount(topo.valence)[3:5].tolist()) == [8, len(v) - 8]
+    for vert in range(len(v)):
+        fans = vertex_fans(topo, vert)
+        assert len(fans) == 1 and fans[0][1] and len(fans[0][0]) == topo.valence[vert]
+    assert _signed_volume(v, f) == pytest.approx(1.0)
+
+
+def test_topology_rejects_what_it_cannot_represent():
+    v, f = quad_grid(2, 1)
+    with pytest.raises(ValueError, match="inconsistently oriented"):
+        quad_topology(np.vstack([f[:1], f[1:, ::-1]]), len(v))
+    with pytest.raises(ValueError, match="repeat a vertex"):
+        quad_topology(np.array([[0, 1, 1, 2]]), len(v))
+    with pytest.raises(ValueError, match="index vertices"):
+        quad_topology(f + 10, len(v))
+
+
+def test_inspect_finds_holes_valence2_and_pinches():
+    v, f = quad_box((2, 2, 2))
+    report = inspect_quad_mesh(v, f)
+    assert report.problems == () and report.euler_characteristic == 2 and report.extraordinary_vertices == 8
+    holed = inspect_quad_mesh(v, f[1:])
+    assert holed.boundary_loop_lengths == (4,) and "hole" in holed.problems[0]
+    assert inspect_quad_mesh(v, f[1:], expected_boundary_loops=1).problems == ()
+    v2, f2 = quad_box((1, 1, 1))
+    two = inspect_quad_mesh(np.vstack([v2, v2 + 5]), np.vstack([f2, f2 + 8]))
+    assert two.problems == () and two.components == 2
+    # Two boxes sharing one corner vertex (the second's corner 0 is the first's corner 7): a pinch.
+    v3 = np.vstack([v2, v2 + (v2[7] - v2[0])])
+    shared = inspect_quad_mesh(v3, np.vstack([f2, np.where(f2 == 0, 7, f2 + 8)]))
+    assert shared.non_manifold_vertices == 1 and "non-manifold" in " ".join(shared.problems)
+
+
+def _with_valence2(v, f):
+    """Split quad 0 of a mesh by a diagonal-free fold: a new vertex inside it with two quads around it."""
+    a, b, c, d = f[0]
+    x = len(v)
+    v = np.vstack([v, v[f[0]].mean(axis=0)])
+    # Quads (x, a, b, c) and (x, c, d, a) tile the old quad; x has valence 2.
+    return v, np.vstack([f[1:], [[x, a, b, c], [x, c, d, a]]])
+
+
+def test_repairs_merge_valence2_and_fill_small_holes():
+    v, f = quad_box((2, 2, 2))
+    v2, f2 = _with_valence2(v, f)
+    assert inspect_quad_mesh(v2, f2).interior_valence2 == 1
+    v3, f3, done = repair_quad_mesh(v2, f2[1:])  # also open a 4-edge hole
+    assert inspect_quad_mesh(v3, f3).problems == ()
+    assert any("valence-2" in d for d in done) and any("4 edges" in d for d in done)
+    assert len(f3) == len(f) and _signed_volume(v3, f3) == pytest.approx(_signed_volume(v, f))
+
+
+def _open_prism(k):
+    """The sides of a triangular prism, k quads long: a quad tube with a triangular hole at each end."""
+    tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.8]])
+    v = np.array([[x, *p] for x in range(k + 1) for p in tri], dtype=float)
+    f = [[3 * i + j, 3 * (i + 1) + j, 3 * (i + 1) + (j + 1) % 3, 3 * i + (j + 1) % 3] for i in range(k) for j in range(3)]
+    return v, np.array(f)
+
+
+def test_repair_pairs_triangular_holes_along_a_strip():
+    v, f = _open_prism(4)
+    assert inspect_quad_mesh(v, f).boundary_loop_lengths == (3, 3)
+    v2, f2, done = repair_quad_mesh(v, f)
+    check = inspect_quad_mesh(v2, f2)
+    assert check.problems == () and check.boundary_loop_lengths == () and check.euler_characteristic == 2
+    assert any("triangular" in d for d in done)
+    assert len(f2) == len(f) + 2 + 4  # two triangles became quads, a strip of 4 quads was split in two
+
+
+def test_holes_the_source_has_are_left_alone():
+    v, f = _open_prism(3)
+    v2, f2, done = repair_quad_mesh(v, f, expected_boundary_loops=2)
+    assert done == [] and np.array_equal(f2, f)
+    assert inspect_quad_mesh(v2, f2, expected_boundary_loops=2).problems == ()
+
+
+def test_repair_collapses_a_folded_quad():
+    v, f = quad_grid(3, 3)
+    v = v.copy()
+    # Pull the centre-ish vertex 5 onto vertex 10 (its diagonal partner in quad 4): the quad folds.
+    q = f[4]
+    v[q[0]] = v[q[2]] + 1e-9
+    v2, f2, done = repair_quad_mesh(v, f, expected_boundary_loops=1)
+    assert any("folded" in d for d in done) and len(f2) == len(f) - 1
+    topo = quad_topology(f2, len(v2))
+    assert len(boundary_loops(topo)) == 1
+
+
+# --- closest points -------------------------------------------------------------------------------------------
+
+def test_closest_points_match_brute_force():
+    rng = np.random.default_rng(3)
+    mesh = trimesh.creation.icosphere(2, radius=5.0)
+    pts = rng.normal(size=(300, 3)) * 6
+    _, dist, _tri = closest_points(pts, mesh.vertices, mesh.faces)
+    corners = mesh.vertices[mesh.faces]
+    for i in range(0, 300, 7):
+        q = point_triangle_closest(np.repeat(pts[i:i + 1], len(corners), 0), corners[:, 0], corners[:, 1], corners[:, 2])
+        assert dist[i] == pytest.approx(np.linalg.norm(q - pts[i], axis=1).min(), abs=1e-9)
+
+
+def test_closest_point_on_a_degenerate_triangle():
+    a = np.array([[0.0, 0, 0]])
+    b = np.array([[0.0, 0, 0]])
+    c = np.array([[2.0, 0, 0]])
+    q = point_triangle_closest(np.array([[1.0, 1.0, 0]]), a, b, c)
+    assert np.allclose(q, [[1.0, 0, 0]])
+
+
+def test_torus_grid_is_clean():
+    v, f = quad_torus(8, 6)
+    assert inspect_quad_mesh(v, f).problems == ()
