@@ -1,0 +1,167 @@
+"""Creases of the triangle mesh, and moving quad-grid points onto them.
+
+Patches meet along sharp edges of the quad mesh, but the remesher puts those a
+little beside the real crease of the denoised mesh (often a few tenths of a mm).
+A patch border left there cuts the corner off one face and adds a sliver to the
+other, an error of the offset times the sine of the crease angle. So quad vertices
+on sharp borders are moved onto the mesh's own crease lines (edges whose dihedral
+angle exceeds a threshold), and onto a crease corner (three or more crease lines
+meeting) where the quad vertex is a corner of the sharp-edge network too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["Creases", "mesh_creases", "closest_on_creases", "snap_points", "edge_keys", "vertex_positions"]
+
+
+@dataclass(frozen=True, eq=False)
+class Creases:
+    """Crease segments of a mesh: endpoints a, b float64 (k, 3) mm; corners float64 (c, 3): crease-graph
+    vertices where three or more creases meet or a crease ends."""
+
+    a: np.ndarray
+    b: np.ndarray
+    corners: np.ndarray
+    tree: cKDTree | None
+    corner_tree: cKDTree | None
+    reach: float  # half the longest segment: a segment's points lie within it of its midpoint
+
+
+def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 40.0) -> Creases:
+    """Edges of the triangle mesh (float64 (n, 3) mm, int (m, 3)) whose two faces' normals differ by more
+    than `angle_deg`."""
+    import trimesh
+
+    if not 0 < angle_deg < 180:
+        raise ValueError(f"angle_deg must be in (0, 180), got {angle_deg}")
+    mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64), process=False)
+    sharp = mesh.face_adjacency_angles > np.radians(angle_deg)
+    edges = mesh.face_adjacency_edges[sharp]
+    V = mesh.vertices
+    if not len(edges):
+        return Creases(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), None, None, 0.0)
+    degree = np.bincount(edges.ravel(), minlength=len(V))
+    corner_ids = np.flatnonzero((degree >= 3) | (degree == 1))
+    a, b = V[edges[:, 0]], V[edges[:, 1]]
+    corners = V[corner_ids]
+    return Creases(a=a, b=b, corners=corners, tree=cKDTree(0.5 * (a + b)),
+                   corner_tree=cKDTree(corners) if len(corners) else None,
+                   reach=float(0.5 * np.linalg.norm(b - a, axis=1).max()))
+
+
+def closest_on_creases(creases: Creases, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest crease points to `points` (n, 3): points float64 (n, 3), distances float64 (n,) (inf: no creases)."""
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if creases.tree is None or not len(P):
+        return P.copy(), np.full(len(P), np.inf)
+    k = min(16, len(creases.a))
+    _, idx = creases.tree.query(P, k=k)
+    idx = idx.reshape(len(P), -1)
+    a, b = creases.a[idx], creases.b[idx]
+    ab = b - a
+    t = np.clip(np.einsum("nkd,nkd->nk", P[:, None, :] - a, ab) / np.maximum(np.einsum("nkd,nkd->nk", ab, ab), 1e-300),
+                0, 1)
+    q = a + t[..., None] * ab
+    d = np.linalg.norm(q - P[:, None, :], axis=2)
+    best = np.argmin(d, axis=1)
+    rows = np.arange(len(P))
+    return q[rows, best], d[rows, best]
+
+
+def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, corner: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Move points (n, 3) onto the creases where one lies within `radius` (n,) mm.
+
+    corner bool (n,): these may go to a crease corner within their radius first.
+    Returns the points float64 (n, 3) and bool (n,) which of them moved.
+    """
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3).copy()
+    radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(P),))
+    moved = np.zeros(len(P), dtype=bool)
+    if corner is not None and creases.corner_tree is not None:
+        sel = np.flatnonzero(np.asarray(corner, dtype=bool))
+        if sel.size:
+            d, i = creases.corner_tree.query(P[sel])
+            ok = d <= radius[sel]
+            # One point per crease corner, the nearest: two quad vertices on one corner would
+            # collapse the edge between them.
+            order = np.argsort(d)
+            taken: set[int] = set()
+            for o in order[ok[order]].tolist():
+                if int(i[o]) in taken:
+                    ok[o] = False
+                taken.add(int(i[o]))
+            P[sel[ok]] = creases.corners[i[ok]]
+            moved[sel[ok]] = True
+    rest = np.flatnonzero(~moved)
+    q, d = closest_on_creases(creases, P[rest])
+    ok = d <= radius[rest]
+    P[rest[ok]] = q[ok]
+    moved[rest[ok]] = True
+    return P, moved
+
+
+def edge_keys(edges: np.ndarray | None) -> set[tuple[int, int]]:
+    """Undirected vertex pairs (int (k, 2)) as a set of sorted tuples."""
+    if edges is None:
+        return set()
+    E = np.sort(np.asarray(edges, dtype=np.int64).reshape(-1, 2), axis=1)
+    return set(map(tuple, E.tolist()))
+
+
+def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sharp: set[tuple[int, int]],
+                     creases: Creases | None, snap_radius: float = 1.0) -> np.ndarray:
+    """Where each quad-mesh vertex of the grids sits on the mesh: float64 (k, 3), NaN for vertices in no grid.
+
+    Vertices on a sharp patch border (an edge of the grid's outline in `sharp`) move onto the
+    mesh's creases if one is within `snap_radius` times their mean edge length; a vertex where
+    sharp edges meet at an angle (or three or more meet) may go to a crease corner instead.
+    Every other vertex goes to its closest mesh point.
+    """
+    from cam.fit.closest import closest_points
+
+    V = np.asarray(vertices, dtype=np.float64)
+    used = np.unique(np.concatenate([np.asarray(g).ravel() for g in grids]))
+    out = np.full(V.shape, np.nan)
+    out[used] = closest_points(index, V[used])[0]
+    if creases is None or creases.tree is None or not sharp:
+        return out
+    border_sharp: dict[int, list[int]] = {}
+    length: dict[int, list[float]] = {}
+    for g in grids:
+        g = np.asarray(g)
+        for a, b in zip(*np.broadcast_arrays(g[:, :-1], g[:, 1:])):
+            for x, y in zip(a.tolist(), b.tolist()):
+                d = float(np.linalg.norm(V[x] - V[y]))
+                length.setdefault(x, []).append(d)
+                length.setdefault(y, []).append(d)
+        for a, b in zip(*np.broadcast_arrays(g[:-1, :], g[1:, :])):
+            for x, y in zip(a.tolist(), b.tolist()):
+                d = float(np.linalg.norm(V[x] - V[y]))
+                length.setdefault(x, []).append(d)
+                length.setdefault(y, []).append(d)
+        outline = np.concatenate([g[0, :], g[1:, -1], g[-1, -2::-1], g[-2:0:-1, 0]])
+        for x, y in zip(outline.tolist(), np.roll(outline, -1).tolist()):
+            if (min(x, y), max(x, y)) in sharp:
+                border_sharp.setdefault(x, []).append(y)
+                border_sharp.setdefault(y, []).append(x)
+    ids = np.array(sorted(border_sharp), dtype=np.int64)
+    if not ids.size:
+        return out
+    corner = np.zeros(ids.size, dtype=bool)
+    for n, vid in enumerate(ids.tolist()):
+        others = sorted(set(border_sharp[vid]))
+        if len(others) >= 3:
+            corner[n] = True
+        elif len(others) == 2:
+            d1, d2 = V[others[0]] - V[vid], V[others[1]] - V[vid]
+            cos = d1 @ d2 / max(np.linalg.norm(d1) * np.linalg.norm(d2), 1e-300)
+            corner[n] = cos > -np.cos(np.radians(30.0))  # not a straight continuation
+    radius = snap_radius * np.array([np.mean(length[v]) for v in ids.tolist()])
+    out[ids] = snap_points(creases, out[ids], radius, corner=corner)[0]
+    return out

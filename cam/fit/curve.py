@@ -1,0 +1,110 @@
+"""Boundary curves: one cubic B-spline per shared boundary, fitted once, interpolating its junctions.
+
+A boundary curve is fitted to where the neighbouring patches' own fits put their
+borders (sampled at matching parameters), by linear least squares with a small
+bending term; the points where patches meet (curve ends and T-junctions inside a
+curve) are interpolated exactly, through a KKT system, so every curve that
+passes through a junction agrees on it to round-off.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from cam.fit.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
+from cam.fit.refine import split_spans
+
+__all__ = ["CurveFit", "fit_curve", "lattice_knots"]
+
+
+@dataclass(frozen=True, eq=False)
+class CurveFit:
+    """knots float64 (n + 4,) in the curve's own parameter; control_points float64 (n, 3) mm;
+    max_error float mm: largest deviation found (from the mesh, or from the data)."""
+
+    knots: np.ndarray
+    control_points: np.ndarray
+    max_error: float
+
+
+def lattice_knots(start: float, end: float, spacing: float, *, degree: int = 3) -> np.ndarray:
+    """Clamped knots on [start, end] with interior knots at the multiples of `spacing` inside it."""
+    if not end > start:
+        raise ValueError(f"curve span must be positive, got [{start}, {end}]")
+    first = np.floor(start / spacing) + 1
+    inner = np.arange(first, np.ceil(end / spacing)) * spacing
+    inner = inner[(inner > start) & (inner < end)]
+    return np.concatenate([[start] * (degree + 1), inner, [end] * (degree + 1)]).astype(np.float64)
+
+
+def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constraints: list[tuple[float, np.ndarray]],
+              length_mm: float, tolerance_mm: float, deviation: Callable[[np.ndarray], np.ndarray] | None = None,
+              project: Callable[[np.ndarray], np.ndarray] | None = None, smoothing_mm2: float = 1e-8,
+              max_refinements: int = 3, min_span: float = 0.125, degree: int = 3) -> CurveFit:
+    """Least-squares cubic through `points` (n, 3) at parameters `t` (n,), exact at `constraints`.
+
+    constraints: (parameter, point (3,)) pairs the curve must pass through (its two ends at
+    least). length_mm scales the bending term to the part. deviation: maps curve points (k, 3)
+    to their distance (k,) from what the curve must stay on (the mesh); without it the
+    distance to the data at their parameters is used. Each refinement round, data points
+    farther than `tolerance_mm` from it are moved by `project` (points (k, 3) -> closest points
+    on it), spans that stay farther are halved (knot insertion, down to `min_span`), and the
+    curve is refitted.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    k = np.asarray(knots, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or t.shape != (len(P),):
+        raise ValueError(f"need points (n, 3) and t (n,), got {P.shape} and {t.shape}")
+    rounds = 0
+    while True:
+        cp = _solve(P, t, k, constraints, length_mm, smoothing_mm2, degree)
+        if deviation is not None:
+            where = span_params(k, 8)
+            err = np.asarray(deviation(evaluate_curve(k, cp, where, degree=degree)[0]), dtype=np.float64)
+        else:
+            where = t
+            err = np.linalg.norm(evaluate_curve(k, cp, t, degree=degree)[0] - P, axis=1) if len(P) else np.zeros(0)
+        worst = float(err.max(initial=0.0))
+        if worst <= tolerance_mm or rounds >= max_refinements:
+            break
+        moved = False
+        if deviation is not None and project is not None and len(P):
+            # Data off the mesh (a patch fit's border past where it had samples) is no data for the curve.
+            off = np.asarray(deviation(P)) > tolerance_mm
+            if off.any():
+                P = P.copy()
+                P[off] = project(P[off])
+                moved = True
+        new = split_spans(k, where[err > tolerance_mm], degree=degree, min_span=min_span)
+        if new.size == k.size and not moved:
+            break
+        k, rounds = new, rounds + 1
+    return CurveFit(knots=k, control_points=cp, max_error=worst)
+
+
+def _solve(P, t, knots, constraints, length_mm, smoothing_mm2, degree) -> np.ndarray:
+    n = knots.size - degree - 1
+    span = knots[-1] - knots[0]
+    # Bending ∫|C''|² ds in mm: the parameter runs over `span` units for `length_mm` mm.
+    scale = span / max(length_mm, 1e-6 * span)  # a degenerate (zero-length) curve still solves
+    K = gram_matrix(knots, degree, 2) * scale**3
+    if len(P):
+        B = curve_matrix(knots, degree, t).toarray()
+        M = B.T @ B / len(P) + smoothing_mm2 * K
+        rhs = B.T @ P / len(P)
+    else:
+        M = smoothing_mm2 * K + 1e-12 * np.eye(n)
+        rhs = np.zeros((n, 3))
+    C = curve_matrix(knots, degree, np.array([c[0] for c in constraints], dtype=np.float64)).toarray()
+    values = np.array([c[1] for c in constraints], dtype=np.float64).reshape(-1, 3)
+    m = len(C)
+    kkt = np.zeros((n + m, n + m))
+    kkt[:n, :n] = M
+    kkt[:n, n:] = C.T
+    kkt[n:, :n] = C
+    sol = np.linalg.lstsq(kkt, np.concatenate([rhs, values]), rcond=None)[0]
+    return sol[:n]

@@ -1,0 +1,159 @@
+"""A patch's quads as a rectangular vertex grid: the initial control net and parameterisation seed.
+
+The segment stage lists a patch as a set of quad faces, its row and column counts
+and its four corners; `patch_grid` walks the faces from the first corner and
+returns the (rows + 1) x (cols + 1) grid of vertex ids. The walk follows each
+quad's own vertex order, so S_u x S_v of a surface fitted on the grid points the
+way the quads' normals point.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+__all__ = ["patch_grid", "orient_grid"]
+
+
+def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = None,
+               rows: int | None = None, cols: int | None = None) -> np.ndarray:
+    """Vertex ids of a patch as a grid: int64 (R + 1, C + 1), index [i, j] with i along u.
+
+    quads: int (m, 4) faces of the quad mesh (counter-clockwise seen from outside);
+    faces: int (k,) the patch's face indices; corner: vertex id to put at [0, 0]
+    (a patch corner; default: any corner); rows/cols: the expected counts (R x C or C x R
+    is accepted, the grid keeps the orientation that puts `corner` first).
+    Raises ValueError when the faces do not form one rectangular grid.
+    """
+    Q = np.asarray(quads, dtype=np.int64)
+    if Q.ndim != 2 or Q.shape[1] != 4:
+        raise ValueError(f"quads must have shape (m, 4), got {Q.shape}")
+    fids = [int(f) for f in np.asarray(faces, dtype=np.int64).ravel()]
+    if not fids:
+        raise ValueError("a patch needs at least one face")
+    if min(fids) < 0 or max(fids) >= len(Q):
+        raise ValueError(f"patch face ids must lie in 0..{len(Q) - 1}")
+    if len(set(fids)) != len(fids):
+        raise ValueError("patch lists a face twice")
+    edge_faces: dict[tuple[int, int], list[int]] = {}
+    for f in fids:
+        for a in range(4):
+            e = _key(Q[f, a], Q[f, (a + 1) % 4])
+            edge_faces.setdefault(e, []).append(f)
+    if any(len(v) > 2 for v in edge_faces.values()):
+        raise ValueError("patch faces share an edge more than twice (non-manifold)")
+    incident: dict[int, list[int]] = {}
+    for f in fids:
+        for vtx in Q[f]:
+            incident.setdefault(int(vtx), []).append(f)
+    if corner is None:
+        corners = [v for v, fs in incident.items() if len(fs) == 1 and _is_corner(Q[fs[0]], v, edge_faces)]
+        if not corners:
+            raise ValueError("patch has no corner (a vertex in one face with two boundary edges)")
+        corner = min(corners)
+    if len(incident.get(int(corner), [])) != 1:
+        raise ValueError(f"vertex {corner} is not a corner of the patch (it is in "
+                         f"{len(incident.get(int(corner), []))} of its faces)")
+    start = incident[int(corner)][0]
+    cyc = list(Q[start])
+    a = cyc.index(int(corner))
+    # [i + 1, j] follows the corner in the face's own order, [i, j + 1] precedes it: S_u x S_v = quad normal.
+    pos: dict[int, tuple[int, int]] = {start: (0, 0)}
+    grid: dict[tuple[int, int], int] = {(0, 0): cyc[a], (1, 0): cyc[(a + 1) % 4], (1, 1): cyc[(a + 2) % 4],
+                                        (0, 1): cyc[(a + 3) % 4]}
+    queue = deque([start])
+    while queue:
+        f = queue.popleft()
+        i, j = pos[f]
+        corners4 = {(0, 0): grid[(i, j)], (1, 0): grid[(i + 1, j)], (1, 1): grid[(i + 1, j + 1)],
+                    (0, 1): grid[(i, j + 1)]}
+        # Each side of the cell: the two shared corners, and the offset of the neighbouring cell.
+        for (s0, s1), (di, dj) in ((((1, 0), (1, 1)), (1, 0)), (((0, 1), (1, 1)), (0, 1)),
+                                   (((0, 0), (0, 1)), (-1, 0)), (((0, 0), (1, 0)), (0, -1))):
+            va, vb = corners4[s0], corners4[s1]
+            others = [g for g in edge_faces[_key(va, vb)] if g != f]
+            if not others:
+                continue
+            g = others[0]
+            ni, nj = i + di, j + dj
+            if g in pos:
+                if pos[g] != (ni, nj):
+                    raise ValueError("patch faces do not form a rectangular grid (a face is reached twice)")
+                continue
+            cg = list(Q[g])
+            if va not in cg or vb not in cg:
+                raise ValueError("inconsistent quad connectivity")
+            # Across side (va, vb) the far corners are the neighbours of va and vb in g not on the side.
+            far_a = _other_neighbour(cg, va, vb)
+            far_b = _other_neighbour(cg, vb, va)
+            for (ci, cj), vid in _far_slots(s0, s1, i, j, di, dj, far_a, far_b).items():
+                if grid.setdefault((ci, cj), vid) != vid:
+                    raise ValueError("patch faces do not form a rectangular grid (a grid point is claimed twice)")
+            pos[g] = (ni, nj)
+            queue.append(g)
+    if len(pos) != len(fids):
+        raise ValueError(f"patch faces are not connected: reached {len(pos)} of {len(fids)}")
+    ij = np.array(list(pos.values()))
+    if ij.min() < 0:
+        raise ValueError("patch faces do not form a rectangular grid (the corner is not a grid corner)")
+    R, C = ij[:, 0].max() + 1, ij[:, 1].max() + 1
+    if R * C != len(fids):
+        raise ValueError(f"patch faces do not form a rectangular grid: {len(fids)} faces in a {R} x {C} box")
+    if rows is not None and cols is not None and sorted((R, C)) != sorted((int(rows), int(cols))):
+        raise ValueError(f"patch says {rows} x {cols} quads but its faces form {R} x {C}")
+    out = np.empty((R + 1, C + 1), dtype=np.int64)
+    for i in range(R + 1):
+        for j in range(C + 1):
+            out[i, j] = grid[(i, j)]
+    if len(np.unique(out)) != out.size:
+        raise ValueError("patch grid repeats a vertex (a closed or pinched patch)")
+    return out
+
+
+def _key(a: int, b: int) -> tuple[int, int]:
+    a, b = int(a), int(b)
+    return (a, b) if a < b else (b, a)
+
+
+def _is_corner(face: np.ndarray, v: int, edge_faces: dict) -> bool:
+    cyc = [int(x) for x in face]
+    k = cyc.index(v)
+    return len(edge_faces[_key(v, cyc[(k + 1) % 4])]) == 1 and len(edge_faces[_key(v, cyc[(k - 1) % 4])]) == 1
+
+
+def _other_neighbour(cyc: list[int], v: int, exclude: int) -> int:
+    k = cyc.index(v)
+    a, b = cyc[(k + 1) % 4], cyc[(k - 1) % 4]
+    return b if a == exclude else a
+
+
+def _far_slots(s0, s1, i, j, di, dj, far_a, far_b) -> dict[tuple[int, int], int]:
+    """Grid slots of the two far corners of the neighbouring cell across side (s0, s1)."""
+    (a0, a1), (b0, b1) = s0, s1
+    return {(i + a0 + di, j + a1 + dj): far_a, (i + b0 + di, j + b1 + dj): far_b}
+
+
+def orient_grid(quads: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """`grid` (int (R + 1, C + 1) vertex ids), transposed if needed so that S_u x S_v follows the quads' normals.
+
+    The quad holding grid[0, 0], grid[1, 0], grid[1, 1], grid[0, 1] must list them in that cyclic
+    order; listed the other way round the grid is transposed. Raises ValueError when no quad of
+    `quads` (int (m, 4)) has those four corners.
+    """
+    g = np.asarray(grid, dtype=np.int64)
+    if g.ndim != 2 or min(g.shape) < 2:
+        raise ValueError(f"grid must be (R + 1, C + 1) with R, C >= 1, got shape {g.shape}")
+    Q = np.asarray(quads, dtype=np.int64)
+    cell = {int(g[0, 0]), int(g[1, 0]), int(g[1, 1]), int(g[0, 1])}
+    hits = np.flatnonzero(np.isin(Q, list(cell)).all(axis=1))
+    for f in hits:
+        cyc = [int(x) for x in Q[f]]
+        if set(cyc) != cell:
+            continue
+        a = cyc.index(int(g[0, 0]))
+        if cyc[(a + 1) % 4] == int(g[1, 0]):
+            return g
+        if cyc[(a + 1) % 4] == int(g[0, 1]):
+            return g.T.copy()
+    raise ValueError("no quad has the grid's first cell as its corners")

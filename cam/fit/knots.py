@@ -1,0 +1,139 @@
+"""Exact knot manipulation: insertion, refinement to a target vector, splitting, joining, reversing.
+
+Every operation here leaves the curve or surface unchanged as a point set and
+parameterisation (up to round-off); C0 across patches rests on that: two patches
+that take their boundary rows from one curve by these operations meet exactly.
+Control points run along axis 0 (curves: (n, dim); surfaces: refine along u, or
+pass the transposed net for v).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["insert_knot", "refine_knots", "merge_knots", "split_curve", "sub_curve", "join_curves",
+           "reverse_curve", "shift_curve", "refine_surface"]
+
+
+def insert_knot(knots: np.ndarray, control_points: np.ndarray, t: float, *, degree: int = 3
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Insert `t` once (Boehm): returns knots (m + 1,) and control points (n + 1, ...)."""
+    k = np.asarray(knots, dtype=np.float64)
+    P = np.asarray(control_points, dtype=np.float64)
+    p = degree
+    if not k[p] <= t <= k[-p - 1]:
+        raise ValueError(f"knot {t} lies outside the curve's span [{k[p]}, {k[-p - 1]}]")
+    n = P.shape[0]
+    span = int(np.clip(np.searchsorted(k, t, side="right") - 1, p, n - 1))
+    if np.count_nonzero(k == t) >= p and k[0] < t < k[-1]:
+        raise ValueError(f"knot {t} already has multiplicity {p}; inserting it again would break the curve")
+    Q = np.empty((n + 1,) + P.shape[1:])
+    Q[: span - p + 1] = P[: span - p + 1]
+    Q[span + 1:] = P[span:]
+    for i in range(span - p + 1, span + 1):
+        alpha = (t - k[i]) / (k[i + p] - k[i])
+        Q[i] = alpha * P[i] + (1.0 - alpha) * P[i - 1]
+    return np.insert(k, span + 1, t), Q
+
+
+def _missing(knots: np.ndarray, target: np.ndarray) -> list[float]:
+    """Values of `target` not in `knots`, with multiplicity (a multiset difference)."""
+    have = dict(zip(*np.unique(knots, return_counts=True)))
+    out: list[float] = []
+    for value, count in zip(*np.unique(target, return_counts=True)):
+        out.extend([float(value)] * max(0, int(count) - int(have.get(value, 0))))
+    return out
+
+
+def refine_knots(knots: np.ndarray, control_points: np.ndarray, target: np.ndarray, *, degree: int = 3
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Insert every knot of `target` that `knots` lacks; `target` must contain `knots` as a multiset."""
+    k = np.asarray(knots, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    if _missing(target, k):
+        raise ValueError(f"target knot vector does not contain the curve's knots {_missing(target, k)}")
+    P = np.asarray(control_points, dtype=np.float64)
+    for t in _missing(k, target):
+        k, P = insert_knot(k, P, t, degree=degree)
+    return k, P
+
+
+def merge_knots(*vectors: np.ndarray) -> np.ndarray:
+    """The smallest knot vector containing each of `vectors` (max multiplicity per value), sorted."""
+    counts: dict[float, int] = {}
+    for vec in vectors:
+        for value, count in zip(*np.unique(np.asarray(vec, dtype=np.float64), return_counts=True)):
+            counts[float(value)] = max(counts.get(float(value), 0), int(count))
+    return np.array(sorted(v for v, c in counts.items() for _ in range(c)), dtype=np.float64)
+
+
+def split_curve(knots: np.ndarray, control_points: np.ndarray, t: float, *, degree: int = 3
+                ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Two clamped curves, on [start, t] and [t, end], that share the control point C(t)."""
+    k = np.asarray(knots, dtype=np.float64)
+    P = np.asarray(control_points, dtype=np.float64)
+    p = degree
+    if not k[p] < t < k[-p - 1]:
+        raise ValueError(f"split parameter {t} must lie strictly inside [{k[p]}, {k[-p - 1]}]")
+    for _ in range(p - np.count_nonzero(k == t)):
+        k, P = insert_knot(k, P, t, degree=p)
+    a = int(np.searchsorted(k, t, side="left"))  # first of the p copies of t
+    left = (np.concatenate([k[: a + p], [t]]), P[:a].copy())
+    right = (np.concatenate([[t], k[a:]]), P[a - 1:].copy())
+    return left, right
+
+
+def sub_curve(knots: np.ndarray, control_points: np.ndarray, t0: float, t1: float, *, degree: int = 3
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The piece of a curve on [t0, t1] as a clamped curve with the same parameterisation."""
+    k = np.asarray(knots, dtype=np.float64)
+    P = np.asarray(control_points, dtype=np.float64)
+    if not k[0] <= t0 < t1 <= k[-1]:
+        raise ValueError(f"[{t0}, {t1}] is not inside the curve's span [{k[0]}, {k[-1]}]")
+    if t0 > k[0]:
+        k, P = split_curve(k, P, t0, degree=degree)[1]
+    if t1 < k[-1]:
+        k, P = split_curve(k, P, t1, degree=degree)[0]
+    return k, P
+
+
+def join_curves(pieces: list[tuple[np.ndarray, np.ndarray]], *, degree: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """One curve from clamped pieces end to end (C0 where they meet: the joint knot gets multiplicity p).
+
+    Each piece must start at the parameter and the control point where the previous one ends.
+    """
+    p = degree
+    knots, P = (np.asarray(a, dtype=np.float64) for a in pieces[0])
+    for nk, nP in pieces[1:]:
+        nk = np.asarray(nk, dtype=np.float64)
+        if nk[0] != knots[-1]:
+            raise ValueError(f"piece starts at {nk[0]} but the previous one ends at {knots[-1]}")
+        knots = np.concatenate([knots[:-p - 1], [knots[-1]] * p, nk[p + 1:]])
+        P = np.concatenate([P, np.asarray(nP, dtype=np.float64)[1:]], axis=0)
+    return knots, P
+
+
+def reverse_curve(knots: np.ndarray, control_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same curve run backwards over the same span: C'(t) = C(a + b - t)."""
+    k = np.asarray(knots, dtype=np.float64)
+    return (k[0] + k[-1]) - k[::-1], np.asarray(control_points)[::-1].copy()
+
+
+def shift_curve(knots: np.ndarray, control_points: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """The same curve with its parameter moved by `offset` (exact for the small dyadic values used here)."""
+    return np.asarray(knots, dtype=np.float64) + offset, np.asarray(control_points)
+
+
+def refine_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, *,
+                   target_u: np.ndarray | None = None, target_v: np.ndarray | None = None,
+                   degree: tuple[int, int] = (3, 3)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Insert knots into a surface without changing it: returns knots_u, knots_v, control points (nu, nv, 3)."""
+    ku = np.asarray(knots_u, dtype=np.float64)
+    kv = np.asarray(knots_v, dtype=np.float64)
+    cp = np.asarray(control_points, dtype=np.float64)
+    if target_u is not None:
+        ku, cp = refine_knots(ku, cp, target_u, degree=degree[0])
+    if target_v is not None:
+        kv, cpt = refine_knots(kv, np.swapaxes(cp, 0, 1), target_v, degree=degree[1])
+        cp = np.swapaxes(cpt, 0, 1).copy()
+    return ku, kv, cp

@@ -1,0 +1,295 @@
+"""Patch parameterisation: sample the mesh, seed (u, v) from the quad grid, project onto surfaces.
+
+The quad grid of a patch is a discrete parameterisation of it: quad (i, j) of an
+R x C grid covers [i, i + 1] x [j, j + 1] in grid-index units (the fit works in
+these units and divides by R and C only when it writes the surface out). Mesh samples take the
+parameters of their closest point on the grid's quads; the fit then corrects them
+by projecting onto the current surface (`project_points`, Newton on |S - p|²),
+which is what the squared-distance iteration needs at every step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cam.fit.basis import evaluate_surface, span_params
+from cam.fit.closest import closest_points, mesh_index
+
+__all__ = ["mesh_samples", "Assignment", "assign_samples", "project_points", "FootFrame", "foot_frames",
+           "distance_to_surface", "Anchors", "grid_anchors"]
+
+_LEVELS = {0: 1, 1: 3, 3: 4, 6: 5, 10: 6}  # samples per face -> barycentric lattice level
+
+
+def mesh_samples(vertices: np.ndarray, faces: np.ndarray, *, per_face: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Points on a triangle mesh with unit normals: the vertices, plus `per_face` interior points per face.
+
+    vertices float64 (n, 3) mm, faces int (m, 3); per_face in {0, 1, 3, 6, 10} (points of the
+    barycentric lattice strictly inside each face). Returns points and normals, float64 (k, 3).
+    Vertices no face uses are left out; vertex normals are area weighted.
+    """
+    if per_face not in _LEVELS:
+        raise ValueError(f"per_face must be one of {sorted(_LEVELS)}, got {per_face}")
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    tri = V[F]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = twice the area
+    vn = np.zeros_like(V)
+    for k in range(3):
+        np.add.at(vn, F[:, k], fn)
+    used = np.unique(F)
+    pts, nrm = [V[used]], [_unit(vn[used])]
+    L = _LEVELS[per_face]
+    bary = np.array([(a, b, L - a - b) for a in range(1, L) for b in range(1, L - a)], dtype=np.float64) / L
+    if bary.size:
+        pts.append(np.einsum("bk,fkd->fbd", bary, tri).reshape(-1, 3))
+        nrm.append(np.repeat(_unit(fn), len(bary), axis=0))
+    return np.concatenate(pts), np.concatenate(nrm)
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    return np.divide(a, n, out=np.zeros_like(a), where=n > 0)
+
+
+@dataclass(frozen=True, eq=False)
+class Assignment:
+    """Which patch each sample falls in and where: patch int64 (n,) (-1: none); u, v float64 (n,) in
+    grid-index units (u in [0, R] counts quads along the patch's first axis); distance float64 (n,) mm
+    to the quad mesh."""
+
+    patch: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    distance: np.ndarray
+
+
+def assign_samples(points: np.ndarray, vertices: np.ndarray, grids: list[np.ndarray], *,
+                   other_quads: np.ndarray | None = None) -> Assignment:
+    """Assign samples to the patch of their closest quad and seed their parameters from the grid.
+
+    points float64 (n, 3) mm; vertices float64 (k, 3) quad-mesh vertices; grids: per patch int
+    (R + 1, C + 1) vertex ids; other_quads int (q, 4): quads in no patch (the setup base...),
+    which take samples away from the patches (patch -1) instead of letting them stick to one.
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    tris, owner, cell = [], [], []
+    for k, g in enumerate(grids):
+        g = np.asarray(g, dtype=np.int64)
+        R, C = g.shape[0] - 1, g.shape[1] - 1
+        i, j = np.meshgrid(np.arange(R), np.arange(C), indexing="ij")
+        i, j = i.ravel(), j.ravel()
+        a, b, c, d = g[i, j], g[i + 1, j], g[i + 1, j + 1], g[i, j + 1]
+        tris += [np.stack([a, b, c], 1), np.stack([a, c, d], 1)]
+        for half in (0, 1):
+            owner.append(np.full(i.size, k))
+            cell.append(np.stack([i, j, np.full(i.size, half), np.full(i.size, R), np.full(i.size, C)], 1))
+    if other_quads is not None and len(other_quads):
+        oq = np.asarray(other_quads, dtype=np.int64).reshape(-1, 4)
+        tris += [oq[:, [0, 1, 2]], oq[:, [0, 2, 3]]]
+        owner.append(np.full(2 * len(oq), -1))
+        cell.append(np.zeros((2 * len(oq), 5), dtype=np.int64) + np.array([0, 0, 0, 1, 1]))
+    T = np.concatenate(tris)
+    own = np.concatenate(owner)
+    cells = np.concatenate(cell)
+    _, dist, tri, bary = closest_points(mesh_index(V, T), points)
+    i, j, half, R, C = cells[tri].T
+    # Local corner coordinates of the two halves: (0,0),(1,0),(1,1) and (0,0),(1,1),(0,1).
+    lu = np.where(half == 0, bary[:, 1] + bary[:, 2], bary[:, 1])
+    lv = np.where(half == 0, bary[:, 2], bary[:, 1] + bary[:, 2])
+    return Assignment(patch=own[tri], u=np.clip(i + lu, 0, R), v=np.clip(j + lv, 0, C), distance=dist)
+
+
+def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, points: np.ndarray,
+                   u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), iterations: int = 8
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Foot points of `points` (n, 3) on the surface, by Newton's method from (u, v), kept in the domain.
+
+    Returns u, v float64 (n,) and distance float64 (n,) mm. A step that does not shorten the
+    distance is halved (twice), then dropped, so the distance never grows.
+    """
+    p, q = degree
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    u0, u1, v0, v1 = ku[p], ku[-p - 1], kv[q], kv[-q - 1]
+    P = np.asarray(points, dtype=np.float64)
+    u = np.clip(np.asarray(u, dtype=np.float64).copy(), u0, u1)
+    v = np.clip(np.asarray(v, dtype=np.float64).copy(), v0, v1)
+
+    def dist(uu, vv, idx=slice(None)):
+        S = evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
+        return np.linalg.norm(S - P[idx], axis=1)
+
+    for _ in range(iterations):
+        d = evaluate_surface(ku, kv, control_points, u, v, degree=degree, order=2)
+        r = d[(0, 0)] - P
+        su, sv = d[(1, 0)], d[(0, 1)]
+        g = np.stack([np.einsum("ij,ij->i", r, su), np.einsum("ij,ij->i", r, sv)], 1)
+        huu = np.einsum("ij,ij->i", su, su) + np.einsum("ij,ij->i", r, d[(2, 0)])
+        huv = np.einsum("ij,ij->i", su, sv) + np.einsum("ij,ij->i", r, d[(1, 1)])
+        hvv = np.einsum("ij,ij->i", sv, sv) + np.einsum("ij,ij->i", r, d[(0, 2)])
+        det = huu * hvv - huv**2
+        bad = (det <= 1e-12 * (huu * hvv + 1e-300)) | (huu <= 0)
+        # Where the full Hessian is not positive definite, fall back to Gauss–Newton (J^T J).
+        huu = np.where(bad, np.einsum("ij,ij->i", su, su), huu)
+        huv = np.where(bad, np.einsum("ij,ij->i", su, sv), huv)
+        hvv = np.where(bad, np.einsum("ij,ij->i", sv, sv), hvv)
+        det = huu * hvv - huv**2
+        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
+        step_u = -(hvv * g[:, 0] - huv * g[:, 1]) / det
+        step_v = -(huu * g[:, 1] - huv * g[:, 0]) / det
+        current = np.linalg.norm(r, axis=1)
+        new_u, new_v, new_d = u.copy(), v.copy(), current.copy()
+        todo = np.flatnonzero(np.abs(step_u) + np.abs(step_v) > 1e-13)
+        scale = 1.0
+        for _half in range(3):  # full step, then halves, only where the previous try did not help
+            if not todo.size:
+                break
+            tu = np.clip(u[todo] + scale * step_u[todo], u0, u1)
+            tv = np.clip(v[todo] + scale * step_v[todo], v0, v1)
+            td = dist(tu, tv, todo)
+            better = td < current[todo]
+            idx = todo[better]
+            new_u[idx], new_v[idx], new_d[idx] = tu[better], tv[better], td[better]
+            todo = todo[~better]
+            scale *= 0.5
+        moved = np.maximum(np.abs(new_u - u), np.abs(new_v - v))
+        u, v = new_u, new_v
+        if moved.max(initial=0.0) < 1e-10:
+            break
+    return u, v, dist(u, v)
+
+
+@dataclass(frozen=True, eq=False)
+class FootFrame:
+    """Differential geometry at foot points, each (n, 3) or (n,): surface point, unit normal N = S_u x S_v,
+    principal directions t1, t2 (unit, tangent) with curvatures k1, k2 (1/mm, positive when the surface
+    bends towards +N), S_u and S_v."""
+
+    point: np.ndarray
+    normal: np.ndarray
+    t1: np.ndarray
+    t2: np.ndarray
+    k1: np.ndarray
+    k2: np.ndarray
+    su: np.ndarray
+    sv: np.ndarray
+
+
+def foot_frames(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, u: np.ndarray,
+                v: np.ndarray, *, degree: tuple[int, int] = (3, 3)) -> FootFrame:
+    """Normals, principal directions and curvatures at (u, v) from the fundamental forms."""
+    d = evaluate_surface(knots_u, knots_v, control_points, u, v, degree=degree, order=2)
+    su, sv = d[(1, 0)], d[(0, 1)]
+    n = _unit(np.cross(su, sv))
+    E, F, G = (np.einsum("ij,ij->i", a, b) for a, b in ((su, su), (su, sv), (sv, sv)))
+    L, M, N = (np.einsum("ij,ij->i", d[k], n) for k in ((2, 0), (1, 1), (0, 2)))
+    det = E * G - F**2
+    # A degenerate point (S_u parallel to S_v) has no curvature to speak of: treat it as flat.
+    flat = ~(det > 1e-12 * E * G) | ~np.isfinite(det)
+    det = np.where(flat, 1.0, det)
+    L, M, N = (np.where(flat, 0.0, x) for x in (L, M, N))
+    # Shape operator W = I^-1 II in the (S_u, S_v) basis.
+    w00, w01 = (G * L - F * M) / det, (G * M - F * N) / det
+    w10, w11 = (E * M - F * L) / det, (E * N - F * M) / det
+    half_trace = 0.5 * (w00 + w11)
+    disc = np.sqrt(np.maximum(half_trace**2 - (w00 * w11 - w01 * w10), 0.0))
+    k1, k2 = half_trace + disc, half_trace - disc
+    # Eigenvector of k1: pick the better conditioned of the two row-derived candidates.
+    a1, b1 = w01, k1 - w00
+    a2, b2 = k1 - w11, w10
+    use2 = (a2**2 + b2**2) > (a1**2 + b1**2)
+    a, b = np.where(use2, a2, a1), np.where(use2, b2, b1)
+    t1 = a[:, None] * su + b[:, None] * sv
+    degenerate = np.linalg.norm(t1, axis=1) < 1e-12 * (np.linalg.norm(su, axis=1) + 1e-300)
+    t1 = np.where(degenerate[:, None], su, t1)  # umbilic: any tangent direction is principal
+    t1 = _unit(t1 - np.einsum("ij,ij->i", t1, n)[:, None] * n)
+    t2 = np.cross(n, t1)
+    return FootFrame(point=d[(0, 0)], normal=n, t1=t1, t2=t2, k1=k1, k2=k2, su=su, sv=sv)
+
+
+def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
+                        points: np.ndarray, *, degree: tuple[int, int] = (3, 3), density: int = 4
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distance from `points` (n, 3) to a surface without a starting guess: u, v, distance (n,) each.
+
+    Starts Newton from the nearest of `density` x `density` samples per knot span, so a
+    point far from where any guess would put it still finds its foot point.
+    """
+    from scipy.spatial import cKDTree
+
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    gu = span_params(ku, density)
+    gv = span_params(kv, density)
+    uu, vv = np.meshgrid(gu, gv, indexing="ij")
+    S = evaluate_surface(ku, kv, control_points, uu.ravel(), vv.ravel(), degree=degree, order=0)[(0, 0)]
+    nearest = cKDTree(S).query(np.asarray(points, dtype=np.float64))[1]
+    return project_points(ku, kv, control_points, points, uu.ravel()[nearest], vv.ravel()[nearest], degree=degree)
+
+
+@dataclass(frozen=True, eq=False)
+class Anchors:
+    """Quad-grid vertices on the mesh, with the grid parameters they have by construction.
+
+    points, normals float64 (m, 3) (mm, unit mesh normals); u, v float64 (m,) grid indices;
+    across_u, across_v float64 (m, 3): at vertices on a u-border (i = 0 or R) / v-border
+    (j = 0 or C), the unit tangent direction across that border; zero elsewhere. The border
+    lies where the patch's quads end, so that component is exact; where a vertex sits along
+    the border or inside is only as regular as the remesher made it.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    across_u: np.ndarray
+    across_v: np.ndarray
+    targets: np.ndarray
+
+
+def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, spacing: float = 2.0,
+                 positions: np.ndarray | None = None) -> Anchors:
+    """Anchors of one patch: its grid (int (R + 1, C + 1) vertex ids) moved onto the mesh `index`.
+
+    positions float64 (k, 3), one row per quad-mesh vertex: where each vertex goes (e.g. onto a
+    crease, see `cam.fit.crease`); default: the closest point of the mesh.
+
+    `targets` (m, 3) are where a smooth parameterisation puts the grid points: a cubic spline
+    with knots every `spacing` quads fitted to the grid vertices at their indices, so the
+    remesher's vertex-to-vertex irregularity is not forced on the fit while its overall
+    layout is kept (and an exact grid stays exact).
+    """
+    from cam.fit.basis import surface_matrix
+
+    g = np.asarray(grid, dtype=np.int64)
+    G = np.asarray(vertices, dtype=np.float64)[g]
+    on_mesh, _, tri, _ = closest_points(index, G.reshape(-1, 3))
+    if positions is not None:
+        on_mesh = np.asarray(positions, dtype=np.float64)[g.ravel()]
+    f = index.faces[tri]
+    corner = index.vertices[f]
+    n = _unit(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]))
+    di = np.gradient(G, axis=0).reshape(-1, 3)
+    dj = np.gradient(G, axis=1).reshape(-1, 3)
+    ti = _unit(di - np.einsum("ij,ij->i", di, n)[:, None] * n)
+    tj = _unit(dj - np.einsum("ij,ij->i", dj, n)[:, None] * n)
+    # Across a u-border is along i, with the along-border (j) part removed; likewise for v.
+    au = _unit(ti - np.einsum("ij,ij->i", ti, tj)[:, None] * tj)
+    av = _unit(tj - np.einsum("ij,ij->i", tj, ti)[:, None] * ti)
+    i, j = np.meshgrid(np.arange(g.shape[0]), np.arange(g.shape[1]), indexing="ij")
+    on_u = ((i == 0) | (i == g.shape[0] - 1)).ravel()
+    on_v = ((j == 0) | (j == g.shape[1] - 1)).ravel()
+    iu, jv = i.ravel().astype(np.float64), j.ravel().astype(np.float64)
+    ku = _lattice(g.shape[0] - 1, spacing)
+    kv = _lattice(g.shape[1] - 1, spacing)
+    B = surface_matrix(ku, kv, iu, jv).toarray()
+    targets = B @ np.linalg.lstsq(B, on_mesh, rcond=None)[0]
+    return Anchors(points=on_mesh, normals=n, u=iu, v=jv, across_u=au * on_u[:, None], across_v=av * on_v[:, None],
+                   targets=targets)
+
+
+def _lattice(count: int, spacing: float) -> np.ndarray:
+    inner = np.arange(spacing, count, spacing)
+    inner = inner[(inner > 0) & (inner < count)]
+    return np.concatenate([[0.0] * 4, inner, [float(count)] * 4])

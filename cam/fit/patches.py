@@ -1,0 +1,345 @@
+"""Fit every patch: free fits, shared boundary curves, border-constrained fits, refinement, report.
+
+The order follows the paper with C0 made exact:
+1. each patch is fitted on its own (squared-distance iteration, its quad grid holding
+   the parameterisation and the extent), and samples that fell beyond a border move to
+   the neighbour that is closer;
+2. each boundary curve is fitted once, through the junction points where patches meet:
+   along a sharp edge to the mesh's own crease, elsewhere to where the patches' own fits
+   put their borders;
+3. each patch is fitted again with its border rows taken from the curves (knots
+   merged, curves refined into them by exact knot insertion) and held fixed;
+4. spans still beyond the tolerance are halved and refitted; what remains beyond it
+   is reported per patch, never hidden.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from cam.bspline import BSplineSurface, make_bspline_surface
+from cam.fit.basis import evaluate_surface, span_params
+from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
+from cam.fit.closest import closest_points, mesh_index
+from cam.fit.crease import edge_keys, mesh_creases, snap_points, vertex_positions
+from cam.fit.curve import CurveFit, fit_curve, lattice_knots
+from cam.fit.knots import join_curves, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
+from cam.fit.param import assign_samples, distance_to_surface, grid_anchors, mesh_samples
+from cam.fit.refine import fit_refined
+from cam.fit.solve import SurfaceFit
+
+__all__ = ["PatchFit", "FitResult", "fit_patches"]
+
+
+@dataclass(frozen=True, eq=False)
+class PatchFit:
+    """One patch's surface (parameters on [0, 1]) and how well it fits.
+
+    max_error_mm / mean_error_mm: distance from the patch's mesh samples to the fitted surfaces
+    (a sample beyond the border counts against the nearest neighbour), max_error_mm also
+    covers surface_to_mesh_mm: the largest distance from points of the surface to the mesh;
+    boundary_error_mm: the largest distance of its boundary curves from the mesh.
+    """
+
+    index: int
+    surface: BSplineSurface
+    max_error_mm: float
+    mean_error_mm: float
+    surface_to_mesh_mm: float
+    boundary_error_mm: float
+    samples: int
+    refinements: int
+    within_tolerance: bool
+    neighbours: tuple[int, ...]
+    side_neighbours: dict[str, tuple[int, ...]]
+
+
+@dataclass(frozen=True, eq=False)
+class FitResult:
+    """Every patch's fit (in the order of the grids given), the largest gap between neighbours
+    along shared borders (mm), the number of boundary curves, and the tolerance used."""
+
+    patches: list[PatchFit]
+    max_gap_mm: float
+    curves: int
+    tolerance_mm: float
+
+    @property
+    def over_tolerance(self) -> list[int]:
+        """Indices of the patches whose max_error_mm exceeds the tolerance."""
+        return [p.index for p in self.patches if not p.within_tolerance]
+
+
+def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
+                *, tolerance_mm: float = 0.032, other_quads: np.ndarray | None = None,
+                sharp_edges: np.ndarray | None = None, crease_angle_deg: float = 40.0, snap_radius: float = 1.0,
+                knot_spacing: float = 2.0, samples_per_face: int = 1, smoothing_mm2: float = 1e-4,
+                smoothing_floor: float = 1e-6, param_weight: float = 0.01, normal_weight_mm: float = 0.02,
+                anchor_weight: float = 1.0, iterations: int = 8, max_refinements: int = 3,
+                on_progress: Callable[[float, str], None] | None = None) -> FitResult:
+    """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
+
+    vertices float64 (k, 3) mm: quad-mesh vertices; grids: per patch int (R + 1, C + 1) vertex ids
+    (see `cam.fit.grid.patch_grid`); mesh_vertices float64 (n, 3) mm and mesh_faces int (m, 3):
+    the triangle mesh to fit; other_quads int (q, 4): quads in no patch (their mesh samples are
+    not fitted). sharp_edges int (e, 2): quad-mesh vertex pairs on sharp edges; patch borders
+    along them are moved onto the mesh's creases (edges sharper than `crease_angle_deg`) found
+    within `snap_radius` quad edges. knot_spacing: quads per knot span to start with;
+    samples_per_face: mesh points taken inside each triangle besides its corners (0, 1, 3, 6 or
+    10). on_progress (fraction, message) is called between patches (it may raise to stop the fit).
+    """
+    if not tolerance_mm > 0:
+        raise ValueError(f"tolerance_mm must be positive, got {tolerance_mm}")
+    if not knot_spacing > 0:
+        raise ValueError(f"knot_spacing must be positive, got {knot_spacing}")
+    V = np.asarray(vertices, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"vertices must have shape (k, 3), got {V.shape}")
+    grids = [np.asarray(g, dtype=np.int64) for g in grids]
+    for k, g in enumerate(grids):
+        if g.ndim != 2 or min(g.shape) < 2:
+            raise ValueError(f"grid {k} must be (R + 1, C + 1) with R, C >= 1, got shape {g.shape}")
+        if g.min() < 0 or g.max() >= len(V):
+            raise ValueError(f"grid {k} refers to vertex ids outside 0..{len(V) - 1}")
+    report = on_progress or (lambda f, m: None)
+    opts = dict(smoothing_mm2=smoothing_mm2, smoothing_floor=smoothing_floor, param_weight=param_weight,
+                normal_weight_mm=normal_weight_mm, anchor_weight=anchor_weight, iterations=iterations)
+    layout = boundary_layout(grids)
+    index = mesh_index(mesh_vertices, mesh_faces)
+    P, N = mesh_samples(mesh_vertices, mesh_faces, per_face=samples_per_face)
+    asg = assign_samples(P, V, grids, other_quads=other_quads)
+    owner, su, sv = asg.patch.copy(), asg.u.copy(), asg.v.copy()
+    sharp = edge_keys(sharp_edges)
+    creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg) if sharp else None
+    positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases, snap_radius=snap_radius)
+    anchors = [grid_anchors(V, g, index, spacing=knot_spacing, positions=positions) for g in grids]
+    sharp_side = {(k, name): _is_sharp(side_vertices(g, name), sharp) for k, g in enumerate(grids) for name in SIDES}
+    lengths = [_lengths(V, g) for g in grids]
+    shape = [(g.shape[0] - 1, g.shape[1] - 1) for g in grids]
+    n = len(grids)
+
+    def data(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        # The patch's mesh samples, then its grid vertices on the mesh: a patch too thin to own
+        # samples still has data, and results are reported for the samples only (the first rows).
+        sel = owner == k
+        a = anchors[k]
+        return (np.concatenate([P[sel], a.points]), np.concatenate([N[sel], a.normals]),
+                np.concatenate([su[sel], a.u]), np.concatenate([sv[sel], a.v]))
+
+    def free_fit(k: int, start: SurfaceFit | None) -> SurfaceFit:
+        R, C = shape[k]
+        kw = dict(knots_u=lattice_knots(0, R, knot_spacing), knots_v=lattice_knots(0, C, knot_spacing))
+        if start is not None:
+            kw = dict(knots_u=start.knots_u, knots_v=start.knots_v, control_points=start.control_points)
+        pts, nrm, u, v = data(k)
+        pull = tuple(not sharp_side[(k, name)] for name in SIDES)
+        return fit_refined(pts, nrm, u, v, tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
+                           max_refinements=max_refinements, pull_sides=pull, **kw, **opts)[0]
+
+    free: list[SurfaceFit] = []
+    for k in range(n):
+        free.append(free_fit(k, None))
+        report(0.35 * (k + 1) / n, f"fitted patch {k + 1} of {n} on its own")
+    moved = _reassign(P, owner, su, sv, free, layout, tolerance_mm)
+    for k in sorted(moved):
+        free[k] = free_fit(k, free[k])
+    report(0.4, "fitting the shared boundary curves")
+    curves, curve_err = _fit_curves(layout, grids, shape, free, positions, index, creases, sharp, knot_spacing,
+                                    tolerance_mm, max_refinements)
+    final: list[SurfaceFit] = []
+    rounds: list[int] = []
+    for k in range(n):
+        ku, kv, cp = _constrained_start(k, layout, free[k], curves)
+        pts, nrm, u, v = data(k)
+        fit, r = fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
+                             tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
+                             max_refinements=max_refinements, **opts)
+        final.append(fit)
+        rounds.append(r)
+        report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
+    errors = _sample_errors(P, owner, final, layout, tolerance_mm)
+    out = []
+    for k in range(n):
+        R, C = shape[k]
+        fit = final[k]
+        surf = make_bspline_surface(fit.control_points, fit.knots_u / R, fit.knots_v / C)
+        e = errors[owner == k]
+        s2m = _surface_to_mesh(index, fit)
+        berr = max((curve_err[p.curve] for name in SIDES for p in layout.sides[(k, name)]), default=0.0)
+        worst = max(float(e.max(initial=0.0)), s2m)
+        out.append(PatchFit(index=k, surface=surf, max_error_mm=worst, mean_error_mm=float(e.mean()) if e.size else 0.0,
+                            surface_to_mesh_mm=s2m, boundary_error_mm=berr, samples=int(e.size), refinements=rounds[k],
+                            within_tolerance=worst <= tolerance_mm, neighbours=layout.neighbours[k],
+                            side_neighbours={s: layout.side_neighbours[(k, s)] for s in SIDES}))
+    report(1.0, "fitted")
+    return FitResult(patches=out, max_gap_mm=_max_gap(out, layout, shape), curves=len(curves),
+                     tolerance_mm=tolerance_mm)
+
+
+def _lengths(V: np.ndarray, g: np.ndarray) -> tuple[float, float]:
+    """Mean mm per grid-index unit along u and v (scales the bending energy to the part)."""
+    pts = V[g]
+    lu = np.linalg.norm(np.diff(pts, axis=0), axis=2).mean()
+    lv = np.linalg.norm(np.diff(pts, axis=1), axis=2).mean()
+    return float(max(lu, 1e-9)), float(max(lv, 1e-9))
+
+
+def _reassign(P, owner, su, sv, fits, layout: Layout, tol: float) -> set[int]:
+    """Move samples that lie beyond their patch's border to a neighbour that is closer; returns changed patches."""
+    changed: set[int] = set()
+    before = owner.copy()  # the fits' sample order; moves are applied to `owner` as they are found
+    for k, fit in enumerate(fits):
+        idx = np.flatnonzero(before == k)
+        far = fit.clamped[: idx.size] & (fit.distance[: idx.size] > 0.5 * tol)
+        cand = idx[far]
+        if not cand.size or not layout.neighbours[k]:
+            continue
+        best_d = fit.distance[: idx.size][far].copy()
+        best = np.full(cand.size, k)
+        best_u, best_v = su[cand].copy(), sv[cand].copy()
+        for nb in layout.neighbours[k]:
+            f = fits[nb]
+            u, v, d = distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[cand])
+            better = d < best_d
+            best_d, best = np.where(better, d, best_d), np.where(better, nb, best)
+            best_u, best_v = np.where(better, u, best_u), np.where(better, v, best_v)
+        moved = best != k
+        if moved.any():
+            changed.add(k)
+            changed.update(int(x) for x in np.unique(best[moved]))
+            owner[cand[moved]] = best[moved]
+            su[cand[moved]], sv[cand[moved]] = best_u[moved], best_v[moved]
+    return changed
+
+
+def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, sharp, spacing: float, tol: float,
+                max_refinements: int) -> tuple[list[CurveFit], list[float]]:
+    """Fit each boundary curve once, through its junction points.
+
+    Along a crease the data are the crease itself (points between the curve's vertices moved
+    onto it); elsewhere, where the patches' own fits put their borders.
+    """
+    ends = {spec.vertices[0] for spec in layout.curves} | {spec.vertices[-1] for spec in layout.curves}
+    samples: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in layout.curves]
+    for (k, name), pieces in layout.sides.items():
+        R, C = shape[k]
+        f = free[k]
+        for pc in pieces:
+            t0, t1 = pc.side
+            t = np.linspace(t0, t1, 4 * (t1 - t0) + 1)
+            u, v = side_params(name, t, R, C)
+            q = evaluate_surface(f.knots_u, f.knots_v, f.control_points, u, v, order=0)[(0, 0)]
+            h = (pc.host[1] - (t - t0)) if pc.reversed else (pc.host[0] + (t - t0))
+            samples[pc.curve].append((q, h))
+    fits, errs = [], []
+    for c, spec in enumerate(layout.curves):
+        verts = np.asarray(spec.vertices)
+        pts = positions[verts]
+        length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+        if creases is not None and _is_sharp(verts, sharp):
+            q, h = _crease_samples(pts, spec.start, creases, index)
+        else:
+            q = np.concatenate([s[0] for s in samples[c]])
+            h = np.concatenate([s[1] for s in samples[c]])
+        cons = [(float(spec.start + i), pts[i]) for i, vid in enumerate(spec.vertices) if vid in ends]
+        fit = fit_curve(q, h, knots=lattice_knots(spec.start, spec.end, spacing), constraints=cons,
+                        length_mm=length, tolerance_mm=0.5 * tol, max_refinements=max_refinements,
+                        deviation=lambda p: closest_points(index, p)[1],
+                        project=lambda p: closest_points(index, p)[0])
+        fits.append(fit)
+        errs.append(fit.max_error)
+    return fits, errs
+
+
+def _is_sharp(verts: np.ndarray, sharp: set) -> bool:
+    """Whether most edges of a vertex polyline are sharp edges."""
+    if not sharp or len(verts) < 2:
+        return False
+    hits = sum((min(a, b), max(a, b)) in sharp for a, b in zip(verts[:-1].tolist(), verts[1:].tolist()))
+    return 2 * hits >= len(verts) - 1
+
+
+def _crease_samples(pts: np.ndarray, start: int, creases, index, per_edge: int = 8
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Points along a polyline of vertex positions moved onto the nearest crease (else onto the mesh),
+    with their curve parameters."""
+    s = np.linspace(0, 1, per_edge, endpoint=False)
+    seg = np.arange(len(pts) - 1)
+    a, b = pts[:-1], pts[1:]
+    q = (a[:, None, :] * (1 - s)[None, :, None] + b[:, None, :] * s[None, :, None]).reshape(-1, 3)
+    h = (seg[:, None] + s[None, :]).ravel() + start
+    edge = np.repeat(np.linalg.norm(b - a, axis=1), per_edge)
+    snapped, moved = snap_points(creases, q, edge)
+    q = np.where(moved[:, None], snapped, closest_points(index, q)[0])
+    return np.concatenate([q, pts[-1:]]), np.concatenate([h, [start + len(pts) - 1.0]])
+
+
+def _side_curve(pieces, curves: list[CurveFit]) -> tuple[np.ndarray, np.ndarray]:
+    """The curve along one side, in the side's parameter, joined from pieces of boundary curves."""
+    parts = []
+    for pc in pieces:
+        cf = curves[pc.curve]
+        k, P = sub_curve(cf.knots, cf.control_points, float(pc.host[0]), float(pc.host[1]))
+        if pc.reversed:
+            k, P = reverse_curve(k, P)
+        parts.append(shift_curve(k, P, float(pc.side[0] - pc.host[0])))
+    return join_curves(parts)
+
+
+def _constrained_start(k: int, layout: Layout, free: SurfaceFit, curves):
+    """Knots merged from the free fit and the four border curves; the free net refined into them, border replaced."""
+    from cam.fit.knots import refine_surface
+
+    side = {name: _side_curve(layout.sides[(k, name)], curves) for name in SIDES}
+    ku = merge_knots(free.knots_u, side["v0"][0], side["v1"][0])
+    kv = merge_knots(free.knots_v, side["u0"][0], side["u1"][0])
+    ku, kv, cp = refine_surface(free.knots_u, free.knots_v, free.control_points, target_u=ku, target_v=kv)
+    cp[:, 0] = refine_knots(*side["v0"], ku)[1]
+    cp[:, -1] = refine_knots(*side["v1"], ku)[1]
+    cp[0, :] = refine_knots(*side["u0"], kv)[1]
+    cp[-1, :] = refine_knots(*side["u1"], kv)[1]
+    return ku, kv, cp
+
+
+def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
+    """Distance of every assigned sample to the fitted surfaces (own, or a neighbour where closer)."""
+    err = np.full(len(P), np.nan)
+    for k, fit in enumerate(fits):
+        idx = np.flatnonzero(owner == k)
+        d = fit.distance[: idx.size].copy()
+        far = fit.clamped[: idx.size] & (d > tol)
+        for nb in layout.neighbours[k]:
+            if not far.any():
+                break
+            f = fits[nb]
+            dn = distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]])[2]
+            d[far] = np.minimum(d[far], dn)
+        err[idx] = d
+    return err
+
+
+def _surface_to_mesh(index, fit: SurfaceFit, density: int = 4) -> float:
+    """Largest distance from the surface (sampled `density` times per knot span each way) to the mesh, mm."""
+    gu, gv = span_params(fit.knots_u, density), span_params(fit.knots_v, density)
+    uu, vv = np.meshgrid(gu, gv, indexing="ij")
+    S = evaluate_surface(fit.knots_u, fit.knots_v, fit.control_points, uu.ravel(), vv.ravel(), order=0)[(0, 0)]
+    return float(closest_points(index, S)[1].max())
+
+
+def _max_gap(patches: list[PatchFit], layout: Layout, shape, samples: int = 64) -> float:
+    """Largest distance between two patches along the boundary they share, mm."""
+    worst = 0.0
+    for seg in layout.shared:
+        pts = []
+        for (k, name, t0, t1), flip in ((seg.a, False), (seg.b, seg.reversed)):
+            R, C = shape[k]
+            t = np.linspace(t0, t1, samples)
+            if flip:
+                t = t[::-1]
+            u, v = side_params(name, t, R, C)
+            pts.append(patches[k].surface.evaluate(u / R, v / C))
+        worst = max(worst, float(np.linalg.norm(pts[0] - pts[1], axis=1).max()))
+    return worst

@@ -1,0 +1,82 @@
+"""Refinement: where a fit stays outside the tolerance, halve the knot spans there and fit again.
+
+Knots live in grid-index units (quad counts along the side), so halving keeps them
+dyadic fractions of the grid: neighbouring patches and both sides of one patch
+produce bit-identical knot values wherever they mean the same place, and merging
+their knot vectors never creates near-duplicates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cam.fit.basis import find_spans
+from cam.fit.knots import refine_surface
+from cam.fit.solve import SurfaceFit, fit_surface
+
+__all__ = ["split_spans", "refine_targets", "border_mask", "fit_refined"]
+
+
+def split_spans(knots: np.ndarray, params: np.ndarray, *, degree: int = 3, min_span: float = 0.125) -> np.ndarray:
+    """`knots` with a knot added in the middle of every span that holds one of `params`.
+
+    Spans shorter than 2 * min_span are left alone (the refinement stops there).
+    Returns a new sorted float64 vector (the same length when nothing was split).
+    """
+    k = np.asarray(knots, dtype=np.float64)
+    params = np.asarray(params, dtype=np.float64).ravel()
+    if params.size == 0:
+        return k.copy()
+    spans = np.unique(find_spans(k, degree, params))
+    lo, hi = k[spans], k[spans + 1]
+    keep = (hi - lo) >= 2 * min_span
+    mids = 0.5 * (lo[keep] + hi[keep])
+    return np.sort(np.concatenate([k, mids]))
+
+
+def refine_targets(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.ndarray, bad: np.ndarray, *,
+                   degree: tuple[int, int] = (3, 3), min_span: float = 0.125) -> tuple[np.ndarray, np.ndarray]:
+    """Knot vectors with the u- and v-spans of the samples flagged `bad` halved (index units)."""
+    bad = np.asarray(bad, dtype=bool)
+    return (split_spans(knots_u, np.asarray(u)[bad], degree=degree[0], min_span=min_span),
+            split_spans(knots_v, np.asarray(v)[bad], degree=degree[1], min_span=min_span))
+
+
+def border_mask(shape: tuple[int, int]) -> np.ndarray:
+    """bool (nu, nv): True on the outer ring of a control net (the four boundary curves)."""
+    m = np.zeros(shape, dtype=bool)
+    m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = True
+    return m
+
+
+def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
+                knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
+                tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, **options
+                ) -> tuple[SurfaceFit, int]:
+    """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
+
+    fix_border keeps the outer ring of control points (knot insertion moves no boundary curve,
+    so the border stays the shared curves through every round); samples beyond a fixed border
+    are ignored (they belong to the neighbour). Returns the best fit and the rounds used.
+    """
+    mode = "drop" if fix_border else "pull"
+    cp = None if control_points is None else np.asarray(control_points, dtype=np.float64)
+    fixed = None if cp is None or not fix_border else border_mask(cp.shape[:2])
+    fit = fit_surface(points, normals, u, v, knots_u=knots_u, knots_v=knots_v, control_points=cp, fixed=fixed,
+                      tolerance_mm=tolerance_mm, clamped_samples=mode, warm=False, **options)
+    rounds = 0
+    while rounds < max_refinements and fit.max_error > tolerance_mm:
+        bad = (fit.distance > tolerance_mm) & ~fit.clamped  # spans with data inside, not border reach
+        tu, tv = refine_targets(fit.knots_u, fit.knots_v, fit.u, fit.v, bad, min_span=min_span)
+        if tu.size == fit.knots_u.size and tv.size == fit.knots_v.size:
+            break
+        ku, kv, cp = refine_surface(fit.knots_u, fit.knots_v, fit.control_points, target_u=tu, target_v=tv)
+        rounds += 1
+        refit = fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
+                            fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
+                            clamped_samples=mode, warm=True, **options)
+        if refit.max_error >= fit.max_error:
+            fit = refit if refit.max_error == fit.max_error else fit
+            break
+        fit = refit
+    return fit, rounds

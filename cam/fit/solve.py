@@ -1,0 +1,249 @@
+"""One surface fitted to mesh samples by squared-distance minimisation (the paper's iteration).
+
+Each step projects the samples onto the current surface (foot points), replaces
+the squared distance of every sample by its local quadratic approximation
+(Wang, Pottmann and Liu 2006: full weight along the normal, d/(d - ρ) along each
+principal direction, ρ the signed radius of curvature, negative weights dropped),
+adds the feature-sensitive normal term (the surface's tangents should be
+orthogonal to the mesh normal, which is linear in the control points) and a
+thin-plate energy, and solves the resulting sparse linear least-squares problem
+for the free control points. Fixed control points (a shared border) stay exactly
+as given.
+
+Squared-distance steps leave tangential motion free, so the parameterisation is
+held by anchors: the quad grid's vertices, moved onto the mesh, keep the grid
+parameters (i, j) they have by construction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+
+from cam.fit.basis import surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
+from cam.fit.param import Anchors, foot_frames, project_points
+
+__all__ = ["SurfaceFit", "fit_surface", "sdm_weights"]
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceFit:
+    """A fitted control net and where the samples fell on it.
+
+    knots_u, knots_v float64; control_points float64 (nu, nv, 3) mm; u, v float64 (n,) foot
+    parameters; distance float64 (n,) mm from each sample to its foot point; clamped bool (n,):
+    foot on the border with the sample beyond it; counted bool (n,): the samples the fit answers
+    for (all, or those inside a fixed border); iterations: the step this fit came from.
+    """
+
+    knots_u: np.ndarray
+    knots_v: np.ndarray
+    control_points: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    distance: np.ndarray
+    clamped: np.ndarray
+    counted: np.ndarray
+    iterations: int
+
+    @property
+    def max_error(self) -> float:
+        """Largest distance over the counted samples, mm."""
+        inside = self.distance[self.counted]
+        return float(inside.max()) if inside.size else 0.0
+
+
+def sdm_weights(signed_distance: np.ndarray, curvature: np.ndarray, *, cap: float = 100.0) -> np.ndarray:
+    """Tangential weight d/(d - ρ) = dκ/(dκ - 1) of the SD error term, dropped where negative, capped."""
+    dk = signed_distance * curvature
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = dk / (dk - 1.0)
+    return np.clip(np.nan_to_num(w, nan=0.0, posinf=cap, neginf=0.0), 0.0, cap)
+
+
+def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *,
+                knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray | None = None,
+                fixed: np.ndarray | None = None, anchors: Anchors | None = None,
+                lengths_mm: tuple[float, float] = (1.0, 1.0), tolerance_mm: float = 0.032,
+                smoothing_mm2: float = 1e-4, smoothing_decay: float = 0.1, smoothing_floor: float = 1e-6,
+                normal_weight_mm: float = 0.02, anchor_weight: float = 1.0, param_weight: float = 0.01,
+                pull_weight: float = 0.3, pull_sides: tuple[bool, bool, bool, bool] = (True, True, True, True),
+                clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
+                degree: tuple[int, int] = (3, 3)) -> SurfaceFit:
+    """Fit a B-spline surface with the given knots to samples, keeping `fixed` control points.
+
+    points, normals float64 (n, 3) (mm, unit mesh normals); u, v float64 (n,) starting parameters
+    in the knots' units; control_points float64 (nu, nv, 3): the start (required when `fixed` is
+    given), else the first step fits each sample's tangent plane at (u, v); fixed bool (nu, nv).
+    anchors: the quad grid's vertices on the mesh (`cam.fit.param.grid_anchors`), parameters fixed:
+    their offsets across the patch border weigh `anchor_weight` in all against the mean squared
+    distance (they hold the patch's extent), their other tangential offsets `param_weight`
+    (they keep the parameterisation from sliding without forcing the grid's irregularities on it).
+    lengths_mm: mm per parameter unit along u and v (scales the thin-plate energy to the part).
+    The smoothing weight (mm²) starts at `smoothing_mm2` and shrinks by `smoothing_decay` per step
+    down to `smoothing_floor` times it, so early steps are stiff and the converged surface is not
+    biased by it; `warm` (a start that already fits, e.g. after knot insertion) starts at the floor.
+    normal_weight_mm: weight of the normal term (an angle error of ε rad costs as much as a
+    distance of ε · normal_weight_mm). clamped_samples: "pull" draws the border out towards
+    samples beyond it, with weight `pull_weight`, across the sides flagged in `pull_sides` (u = u0,
+    u = u1, v = v0, v = v1; a patch fitted on its own, not across a crease, where samples beyond
+    belong to the other face); "drop" ignores them (a border that is a shared curve).
+    Stops when the largest distance is within tolerance and no longer improving, when it stops
+    improving, or after `iterations` steps; returns the best step seen.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    Nm = np.asarray(normals, dtype=np.float64)
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    nu, nv = ku.size - degree[0] - 1, kv.size - degree[1] - 1
+    if P.ndim != 2 or P.shape[1] != 3 or Nm.shape != P.shape:
+        raise ValueError(f"points and normals must both have shape (n, 3), got {P.shape} and {Nm.shape}")
+    if clamped_samples not in ("pull", "drop"):
+        raise ValueError(f"clamped_samples must be 'pull' or 'drop', got {clamped_samples!r}")
+    fixed = np.zeros((nu, nv), dtype=bool) if fixed is None else np.asarray(fixed, dtype=bool)
+    if fixed.shape != (nu, nv):
+        raise ValueError(f"fixed must have shape {(nu, nv)}, got {fixed.shape}")
+    if control_points is None and fixed.any():
+        raise ValueError("fixed control points need control_points to take their values from")
+    system = _System(ku, kv, fixed, lengths_mm, degree)
+    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    n = max(len(P), 1)
+    if control_points is None:
+        # First step: each sample's tangent plane (its mesh normal), the anchors on the mesh and on
+        # the border. Point distances at the seed parameters would drag the parameterisation along
+        # with the seed's errors, and undoing tangential distortion is what foot-point steps do worst.
+        rows = [(surface_rows(ku, kv, u, v, degree=degree), [(Nm, np.full(len(P), 1.0 / n), _dot(Nm, P))])]
+        if anchors is not None:
+            t1, t2 = _plane(anchors.normals)
+            rows.append(_anchor_rows(anchors, ku, kv, degree, anchor_weight, param_weight, t1, t2,
+                                     [(anchors.normals, anchor_weight / len(anchors.points))]))
+        cp = system.solve(rows, smoothing_mm2, np.zeros((nu, nv, 3)))
+    else:
+        cp = np.asarray(control_points, dtype=np.float64).copy()
+        if cp.shape != (nu, nv, 3):
+            raise ValueError(f"control_points must have shape {(nu, nv, 3)}, got {cp.shape}")
+    best: SurfaceFit | None = None
+    stalls = 0
+    # A pulled border settles like a contact problem (samples come in and out of reach), so it gets
+    # more patience before the iteration is called stuck.
+    patience = 4 if clamped_samples == "pull" else 2
+    for it in range(iterations + 1):
+        u, v, dist = project_points(ku, kv, cp, P, u, v, degree=degree)
+        frame = foot_frames(ku, kv, cp, u, v, degree=degree)
+        r = P - frame.point
+        along = _dot(r, frame.normal)
+        off = r - along[:, None] * frame.normal
+        clamped = np.linalg.norm(off, axis=1) > 1e-6 + 1e-3 * np.abs(along)
+        counted = ~clamped if clamped_samples == "drop" else np.ones(len(P), dtype=bool)
+        fit = SurfaceFit(ku, kv, cp, u, v, dist, clamped, counted, it)
+        if best is None or fit.max_error < best.max_error * (1 - 1e-9):
+            stalls = 0 if best is None or fit.max_error < 0.95 * best.max_error else stalls + 1
+            best = fit
+        else:
+            stalls += 1
+        if it == iterations or (best.max_error <= tolerance_mm and stalls >= 1) or stalls >= patience:
+            break
+        lam = smoothing_mm2 * (smoothing_floor if warm else max(smoothing_decay ** (it + 1), smoothing_floor))
+        keep = (~clamped).astype(np.float64) / n
+        terms = [(frame.normal, keep, _dot(frame.normal, P)),
+                 (frame.t1, sdm_weights(along, frame.k1) * keep, _dot(frame.t1, P)),
+                 (frame.t2, sdm_weights(along, frame.k2) * keep, _dot(frame.t2, P))]
+        if clamped_samples == "pull":
+            # Beyond the border, pull within the tangent plane only: the offset along the normal
+            # there is the surface's curvature, not a fitting error.
+            out = off / np.maximum(np.linalg.norm(off, axis=1, keepdims=True), 1e-300)
+            (u0, u1), (v0, v1) = (ku[degree[0]], ku[-degree[0] - 1]), (kv[degree[1]], kv[-degree[1] - 1])
+            on_side = np.stack([u <= u0, u >= u1, v <= v0, v >= v1], axis=1)
+            pull = clamped & (on_side & np.asarray(pull_sides, dtype=bool)).any(axis=1)
+            terms.append((out, pull_weight * pull / n, _dot(out, P)))
+        rows = [(surface_rows(ku, kv, u, v, degree=degree), terms)]
+        if normal_weight_mm > 0:
+            # S_u · n = 0 and S_v · n = 0, scaled by |S_u|, |S_v|: the sine of the normal error.
+            for du, dv, tangent in ((1, 0, frame.su), (0, 1, frame.sv)):
+                w = normal_weight_mm**2 * keep / np.maximum(np.einsum("ij,ij->i", tangent, tangent), 1e-24)
+                rows.append((surface_rows(ku, kv, u, v, degree=degree, du=du, dv=dv), [(Nm, w, np.zeros(len(P)))]))
+        if anchors is not None:
+            af = foot_frames(ku, kv, cp, anchors.u, anchors.v, degree=degree)
+            rows.append(_anchor_rows(anchors, ku, kv, degree, anchor_weight, param_weight, af.t1, af.t2, []))
+        cp = system.solve(rows, lam, cp)
+    return best
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _plane(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents spanning the plane orthogonal to each normal."""
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    t1 = np.cross(normals, helper)
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
+    return t1, np.cross(normals, t1)
+
+
+def _anchor_rows(anchors: Anchors, ku, kv, degree, border_weight: float, param_weight: float, t1, t2, extra):
+    """Anchor terms: across the border (exact, `border_weight` in all) and tangential (`param_weight`)."""
+    ap = anchors.points
+    m = len(ap)
+    on_border = sum(int((np.linalg.norm(a, axis=1) > 0).sum()) for a in (anchors.across_u, anchors.across_v))
+    wb = border_weight / max(int(on_border), 1)
+    wp = np.full(m, param_weight / m)
+    terms = [(t1, wp, _dot(t1, anchors.targets)), (t2, wp, _dot(t2, anchors.targets))]
+    for across in (anchors.across_u, anchors.across_v):
+        mask = np.linalg.norm(across, axis=1) > 0
+        terms.append((across, wb * mask, _dot(across, anchors.targets)))
+    terms += [(e, np.broadcast_to(w, (m,)), _dot(e, ap)) for e, w in extra]
+    return surface_rows(ku, kv, anchors.u, anchors.v, degree=degree), terms
+
+
+class _System:
+    """Normal equations of one knot layout: thin-plate matrix and free/fixed split built once."""
+
+    def __init__(self, ku: np.ndarray, kv: np.ndarray, fixed: np.ndarray, lengths_mm: tuple[float, float],
+                 degree: tuple[int, int]) -> None:
+        self.ncp = fixed.size
+        H = thin_plate_matrix(ku, kv, degree=degree, length_u=lengths_mm[0], length_v=lengths_mm[1])
+        self.H3 = sp.block_diag([H, H, H]).tocsr()
+        free = np.flatnonzero(~fixed.ravel())
+        self.free3 = np.concatenate([free + k * self.ncp for k in range(3)])
+        self.fixed3 = np.concatenate([np.flatnonzero(fixed.ravel()) + k * self.ncp for k in range(3)])
+
+    def solve(self, rows: list, lam: float, cp_current: np.ndarray) -> np.ndarray:
+        """Minimise Σ w (e · S(u) - target)² over the row sets plus lam · thin-plate, free points only.
+
+        rows: [((cols, vals), [(e (n, 3), w (n,), target (n,)), ...]), ...] — each term is a
+        weighted projection of the surface point (or derivative) the row set evaluates.
+        """
+        size = self.ncp
+        blocks = [[None] * 3 for _ in range(3)]
+        rhs = np.zeros(3 * size)
+        pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+        for (cols, vals), terms in rows:
+            for i in range(3):
+                ri = sum(w * e[:, i] * t for e, w, t in terms)
+                rhs[i * size:(i + 1) * size] += weighted_rhs(cols, vals, ri, size)
+            grams = weighted_grams(cols, vals, [sum(w * e[:, i] * e[:, j] for e, w, _ in terms) for i, j in pairs],
+                                   size)
+            for (i, j), g in zip(pairs, grams):
+                blocks[i][j] = g if blocks[i][j] is None else blocks[i][j] + g
+        for i in range(3):
+            for j in range(i):
+                blocks[i][j] = blocks[j][i].T
+        M = (sp.bmat(blocks, format="csr") + lam * self.H3).tocsr()
+        c_all = cp_current.reshape(-1, 3).T.ravel()  # [x..., y..., z...]
+        M_ff = M[self.free3][:, self.free3]
+        r = rhs[self.free3]
+        if self.fixed3.size:
+            r = r - M[self.free3][:, self.fixed3] @ c_all[self.fixed3]
+        # A vanishing diagonal is a control point nothing reaches (no sample, no bending): keep it.
+        diag = M_ff.diagonal()
+        scale = max(float(diag.max(initial=0.0)), 1e-300)
+        weak = diag < 1e-14 * scale
+        if weak.any():
+            M_ff = M_ff + sp.diags(np.where(weak, scale * 1e-10, 0.0))
+            r = r + np.where(weak, scale * 1e-10, 0.0) * c_all[self.free3]
+        c_all = c_all.copy()
+        c_all[self.free3] = spsolve(M_ff.tocsc(), r)
+        return c_all.reshape(3, -1).T.reshape(cp_current.shape)

@@ -1,0 +1,104 @@
+"""Basis functions, design matrices, knot operations and closest points of cam.fit against exact answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cam.bspline import clamped_uniform_knots, make_bspline_surface
+from cam.fit.basis import evaluate_curve, evaluate_surface, gram_matrix, surface_matrix, thin_plate_matrix
+from cam.fit.closest import closest_on_triangles, closest_points, mesh_index
+from cam.fit.knots import (insert_knot, join_curves, merge_knots, refine_knots, refine_surface, reverse_curve,
+                           split_curve, sub_curve)
+from cam.fit.refine import split_spans
+
+KU = np.array([0, 0, 0, 0, 0.2, 0.5, 0.5, 1, 1, 1, 1.0])
+
+
+def _surface(rng):
+    return make_bspline_surface(rng.normal(size=(7, 5, 3)), KU, clamped_uniform_knots(5))
+
+
+def test_evaluation_and_design_matrix_match_the_shared_record():
+    rng = np.random.default_rng(0)
+    s = _surface(rng)
+    u, v = rng.uniform(0, 1, 60), rng.uniform(0, 1, 60)
+    u[:3], v[:3] = [1.0, 0.5, 0.0], [1.0, 0.0, 0.0]
+    ev = evaluate_surface(s.knots_u, s.knots_v, s.control_points, u, v)
+    for (du, dv), value in ev.items():
+        np.testing.assert_allclose(value, s.evaluate(u, v, du=du, dv=dv), atol=1e-10)
+        B = surface_matrix(s.knots_u, s.knots_v, u, v, du=du, dv=dv)
+        np.testing.assert_allclose(B @ s.control_points.reshape(-1, 3), value, atol=1e-10)
+
+
+def test_knot_insertion_and_refinement_leave_the_surface_unchanged():
+    rng = np.random.default_rng(1)
+    s = _surface(rng)
+    ku, kv, cp = refine_surface(s.knots_u, s.knots_v, s.control_points, target_u=merge_knots(KU, [0.3, 0.7, 0.7]),
+                                target_v=merge_knots(s.knots_v, [0.25] * 3))
+    t = make_bspline_surface(cp, ku, kv)
+    u, v = rng.uniform(0, 1, 50), rng.uniform(0, 1, 50)
+    np.testing.assert_allclose(t.evaluate(u, v), s.evaluate(u, v), atol=1e-13)
+    with pytest.raises(ValueError, match="multiplicity"):
+        k = KU
+        P = s.control_points[:, 0]
+        for _ in range(2):
+            k, P = insert_knot(k, P, 0.5)
+    with pytest.raises(ValueError, match="does not contain"):
+        refine_knots(KU, s.control_points[:, 0], clamped_uniform_knots(7))
+
+
+def test_split_join_sub_and_reverse_are_exact():
+    rng = np.random.default_rng(2)
+    P = rng.normal(size=(7, 3))
+    t = np.linspace(0, 1, 101)
+    full = evaluate_curve(KU, P, t)[0]
+    (kl, pl), (kr, pr) = split_curve(KU, P, 0.37)
+    np.testing.assert_array_equal(pl[-1], pr[0])
+    m = t <= 0.37
+    np.testing.assert_allclose(evaluate_curve(kl, pl, t[m])[0], full[m], atol=1e-14)
+    np.testing.assert_allclose(evaluate_curve(kr, pr, t[~m])[0], full[~m], atol=1e-14)
+    kj, pj = join_curves([(kl, pl), (kr, pr)])
+    np.testing.assert_allclose(evaluate_curve(kj, pj, t)[0], full, atol=1e-14)
+    ks, ps = sub_curve(KU, P, 0.2, 0.5)
+    tt = np.linspace(0.2, 0.5, 17)
+    np.testing.assert_allclose(evaluate_curve(ks, ps, tt)[0], evaluate_curve(KU, P, tt)[0], atol=1e-14)
+    kb, pb = reverse_curve(KU, P)
+    np.testing.assert_allclose(evaluate_curve(kb, pb, 1 - t)[0], full, atol=1e-14)
+
+
+def test_thin_plate_matrix_is_the_exact_bending_energy():
+    # S = (x, y, x^2 + x y) on [0, 2] x [0, 3] mm: S_xx = 2, S_xy = 1, S_yy = 0 -> energy (4 + 2) * 6 = 36.
+    ku, kv = clamped_uniform_knots(5), clamped_uniform_knots(4)
+    u, v = np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 9), indexing="ij")
+    x, y = 2 * u.ravel(), 3 * v.ravel()
+    B = surface_matrix(ku, kv, u.ravel(), v.ravel()).toarray()
+    cp = np.linalg.lstsq(B, np.stack([x, y, x**2 + x * y], 1), rcond=None)[0]
+    H = thin_plate_matrix(ku, kv, length_u=2.0, length_v=3.0)
+    assert float(sum(cp[:, k] @ (H @ cp[:, k]) for k in range(3))) == pytest.approx(36.0, rel=1e-9)
+    G = gram_matrix(ku, 3, 0)
+    assert G.sum() == pytest.approx(1.0)  # the basis is a partition of unity on [0, 1]
+
+
+def test_split_spans_halves_only_spans_with_bad_points():
+    k = np.array([0, 0, 0, 0, 2, 4, 4, 4, 4.0])
+    np.testing.assert_array_equal(split_spans(k, [0.5]), [0, 0, 0, 0, 1, 2, 4, 4, 4, 4])
+    np.testing.assert_array_equal(split_spans(k, [0.5], min_span=1.5), k)
+
+
+def test_closest_points_are_exact_against_brute_force():
+    import trimesh
+
+    m = trimesh.creation.icosphere(2)
+    V, F = m.vertices * 10, m.faces
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(400, 3)) * 8
+    q, d, f, b = closest_points(mesh_index(V, F), P)
+    best = np.full(len(P), np.inf)
+    for tri in V[F]:
+        c, _ = closest_on_triangles(P, *(np.broadcast_to(tri[i], P.shape) for i in range(3)))
+        best = np.minimum(best, np.linalg.norm(c - P, axis=1))
+    np.testing.assert_allclose(d, best, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("nk,nkd->nd", b, V[F[f]]), q, atol=1e-12)
+    with pytest.raises(ValueError, match="triangle indices"):
+        mesh_index(V, F + len(V))

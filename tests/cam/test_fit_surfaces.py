@@ -1,0 +1,97 @@
+"""fit_patches on analytic parts: exact reproduction, tolerance, C0 across borders and T-junctions, honest failure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cam.fit.boundary import side_params
+from cam.fit.patches import fit_patches
+from tests.cam.test_fit_shapes import case, cylinder, paraboloid, poly, ridge
+
+EXACT = dict(samples_per_face=0, normal_weight_mm=0.0, tolerance_mm=1e-9, max_refinements=0, iterations=20)
+
+
+def _border_gap(result, grids, a, side_a, b, side_b, t_a, t_b):
+    """Largest distance between patch a along side_a at t_a and patch b along side_b at t_b (grid-index units)."""
+    pts = []
+    for k, side, t in ((a, side_a, t_a), (b, side_b, t_b)):
+        R, C = grids[k].shape[0] - 1, grids[k].shape[1] - 1
+        u, v = side_params(side, np.asarray(t, float), R, C)
+        pts.append(result.patches[k].surface.evaluate(u / R, v / C))
+    return float(np.linalg.norm(pts[0] - pts[1], axis=1).max())
+
+
+def test_a_bicubic_polynomial_is_reproduced():
+    V, ids, MV, MF = case(poly, (20, 10), (10, 5))
+    result = fit_patches(V, [ids], MV, MF, **EXACT)
+    (p,) = result.patches
+    assert p.max_error_mm < 1e-6
+    u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
+    S = p.surface.evaluate(u, v)
+    assert np.abs(poly(S[..., 0], S[..., 1])[..., 2] - S[..., 2]).max() < 1e-6
+    # It spans the patch: its corners are the quad grid's corners.
+    corners = p.surface.evaluate(np.array([0.0, 1, 0, 1]), np.array([0.0, 0, 1, 1]))
+    np.testing.assert_allclose(corners, V[[ids[0, 0], ids[-1, 0], ids[0, -1], ids[-1, -1]]], atol=1e-6)
+
+
+@pytest.mark.parametrize("shape, extent", [(cylinder(25.0), (30, 15)), (paraboloid(0.01), (30, 30))])
+def test_cylinder_section_and_paraboloid_are_within_tolerance(shape, extent):
+    V, ids, MV, MF = case(shape, extent, (15, 8), refine=3)
+    result = fit_patches(V, [ids], MV, MF)
+    (p,) = result.patches
+    assert p.within_tolerance and p.max_error_mm < 0.01 and p.surface_to_mesh_mm < 0.01
+    assert result.over_tolerance == []
+    # Normals follow the quad grid's orientation: they agree with the shape's upward normal.
+    h = 1e-4
+    s0, t0 = extent[0] / 2, extent[1] / 2
+    n = np.cross(shape(s0 + h, t0) - shape(s0 - h, t0), shape(s0, t0 + h) - shape(s0, t0 - h))
+    assert p.surface.normals(np.array([0.5]), np.array([0.5]))[0] @ (n / np.linalg.norm(n)) > 0.9999
+
+
+def test_two_patches_meet_exactly_along_their_border():
+    V, ids, MV, MF = case(cylinder(25.0), (30, 15), (14, 7), refine=3)
+    grids = [ids[:8], ids[7:]]  # rows 0..7 and 7..14 share row 7
+    result = fit_patches(V, grids, MV, MF)
+    assert result.max_gap_mm <= 1e-9
+    t = np.linspace(0, 7, 301)
+    assert _border_gap(result, grids, 0, "u1", 1, "u0", t, t) <= 1e-9
+    assert all(p.within_tolerance for p in result.patches)
+    assert result.patches[0].neighbours == (1,) and result.patches[0].side_neighbours["u1"] == (1,)
+
+
+def test_a_t_junction_is_c0_on_both_pieces():
+    V, ids, MV, MF = case(poly, (20, 10), (10, 5))
+    grids = [ids[0:11, 0:4], ids[0:5, 3:6], ids[4:11, 3:6]]  # A below, B and C on A's top side
+    result = fit_patches(V, grids, MV, MF, **{**EXACT, "tolerance_mm": 1e-6})
+    assert result.max_gap_mm <= 1e-9
+    ta = np.linspace(0, 4, 201)
+    assert _border_gap(result, grids, 0, "v1", 1, "v0", ta, ta) <= 1e-9
+    tb = np.linspace(4, 10, 201)
+    assert _border_gap(result, grids, 0, "v1", 2, "v0", tb, tb - 4) <= 1e-9
+    tc = np.linspace(0, 2, 101)
+    assert _border_gap(result, grids, 1, "u1", 2, "u0", tc, tc) <= 1e-9
+    assert max(p.max_error_mm for p in result.patches) < 1e-5
+
+
+def test_a_crease_inside_a_patch_is_reported_not_accepted():
+    V, ids, MV, MF = case(ridge(10.0, 0.8), (20, 10), (10, 5))
+    result = fit_patches(V, [ids], MV, MF, tolerance_mm=0.005, max_refinements=2)
+    (p,) = result.patches
+    assert not p.within_tolerance and p.max_error_mm > 0.005 and result.over_tolerance == [0]
+    assert p.refinements >= 1
+    # Split at the crease, the same part fits, and the two faces share the crease exactly.
+    split = fit_patches(V, [ids[:6], ids[5:]], MV, MF, tolerance_mm=0.005)
+    assert split.over_tolerance == [] and split.max_gap_mm <= 1e-9
+
+
+def test_inputs_are_checked():
+    V, ids, MV, MF = case(poly, (20, 10), (4, 2), refine=2)
+    with pytest.raises(ValueError, match="tolerance_mm"):
+        fit_patches(V, [ids], MV, MF, tolerance_mm=0)
+    with pytest.raises(ValueError, match="outside"):
+        fit_patches(V, [ids + 1000], MV, MF)
+    with pytest.raises(ValueError, match="per_face"):
+        fit_patches(V, [ids], MV, MF, samples_per_face=2)
+    with pytest.raises(ValueError, match="shape"):
+        fit_patches(V, [ids[:1]], MV, MF)
