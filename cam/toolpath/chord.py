@@ -1,0 +1,140 @@
+"""Points along the passes: straight moves whose chord error stays within its share of the scallop budget.
+
+The budget h is split: the grid plans the scallop with h_s = (1 − f)·h and the straight moves
+between cutter positions may deviate from the ideal ball-centre curve by at most δ = f·h.
+Where the path bends towards the tool (convex along the pass) a chord would cut under the centre
+curve and gouge; there both ends of a move are lifted along the normal by the chord's dip, so the
+move stays on or above the ideal offset and leaves at most δ of extra material. Where the path is
+hollow along the pass the chord lies above the curve and leaves at most δ too. Either way the
+material left is at most h_s + δ = h.
+
+Vertices of iso-parameter passes sit on one lattice per parameter direction, uniform over the patch
+and fine enough for the patch's largest bending, so that neighbouring passes have their vertices side
+by side (the extra material of two lifted passes then lines up instead of smearing out).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cam.toolpath.geometry import Patch, frame, normal_curvature
+
+__all__ = ["PassPoints", "discretize", "lattices"]
+
+
+@dataclass(frozen=True)
+class PassPoints:
+    """Cutter positions of one parameter path.
+
+    uv: float64 (n, 2); cc: contact points and normal: outward unit normals, float64 (n, 3);
+    centre: ball centres after chord lifts, float64 (n, 3) mm; lift: float64 (n,) mm along the normal;
+    kind: int8 (n − 1,) per move (0 side, 1 link, 2 excursion); chord_error: float64 (n − 1,) the extra
+    material each move may leave (mm).
+    """
+
+    uv: np.ndarray
+    cc: np.ndarray
+    normal: np.ndarray
+    centre: np.ndarray
+    lift: np.ndarray
+    kind: np.ndarray
+    chord_error: np.ndarray
+
+
+def lattices(patch: Patch, *, r: float, tol: float, samples: int = 25) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform vertex lattices (u values, v values) whose steps keep the centre-curve chord sag ≤ tol.
+
+    The sag of a step Δ along u is Δ²·|S_u|²·|κ_u|·(1 + rκ_u)/8 (the centre curve is the contact curve
+    scaled by 1 + rκ, with curvature κ/(1 + rκ)); the lattice takes the worst point of a grid.
+    """
+    (u0, u1), (v0, v1) = patch.domain
+    uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
+    fr = frame(patch, uu, vv)
+    out = []
+    for (lo, hi), du, dv, speed2 in (((u0, u1), 1.0, 0.0, fr.e), ((v0, v1), 0.0, 1.0, fr.g)):
+        k = normal_curvature(fr, np.full_like(uu, du), np.full_like(uu, dv))
+        bend = np.max(speed2 * np.abs(k) * np.maximum(1 + r * k, 0.0))
+        n = 1 if bend <= 1e-12 else int(np.ceil((hi - lo) / np.sqrt(8 * tol / bend)))
+        out.append(np.linspace(lo, hi, n + 1))
+    return out[0], out[1]
+
+
+def _vertices(uv: np.ndarray, kind: np.ndarray, lat_u: np.ndarray, lat_v: np.ndarray):
+    step_u = np.min(np.diff(lat_u)) if len(lat_u) > 1 else np.inf
+    step_v = np.min(np.diff(lat_v)) if len(lat_v) > 1 else np.inf
+    pts, kinds = [uv[0]], []
+    for q0, q1, kd in zip(uv[:-1], uv[1:], kind):
+        if q0[1] == q1[1] and q0[0] != q1[0]:
+            inner = lat_u[(lat_u > min(q0[0], q1[0])) & (lat_u < max(q0[0], q1[0]))]
+            inner = inner if q1[0] > q0[0] else inner[::-1]
+            seg = [np.array([x, q0[1]]) for x in inner]
+        elif q0[0] == q1[0] and q0[1] != q1[1]:
+            inner = lat_v[(lat_v > min(q0[1], q1[1])) & (lat_v < max(q0[1], q1[1]))]
+            inner = inner if q1[1] > q0[1] else inner[::-1]
+            seg = [np.array([q0[0], y]) for y in inner]
+        else:
+            n = int(np.ceil(max(abs(q1[0] - q0[0]) / step_u, abs(q1[1] - q0[1]) / step_v, 1.0)))
+            t = np.linspace(0, 1, n + 1)[1:-1, None]
+            seg = list(q0 * (1 - t) + q1 * t)
+        for p in [*seg, q1]:
+            if not np.array_equal(p, pts[-1]):
+                pts.append(np.asarray(p, dtype=np.float64))
+                kinds.append(int(kd))
+    return np.array(pts), np.array(kinds, dtype=np.int8)
+
+
+def _deviation(centre: np.ndarray, probe_c: np.ndarray, probe_n: np.ndarray, probes: int) -> np.ndarray:
+    """Signed distance (m, probes) of probe centres above (+, towards the tool) the chord of their move."""
+    a, b = centre[:-1, None, :], centre[1:, None, :]
+    ab = b - a
+    t = np.clip(np.einsum("mpk,mpk->mp", probe_c - a, ab) / np.maximum(np.einsum("mpk,mpk->mp", ab, ab), 1e-300), 0, 1)
+    foot = a + t[..., None] * ab
+    return np.einsum("mpk,mpk->mp", probe_c - foot, probe_n)
+
+
+def discretize(patch: Patch, uv: np.ndarray, kind: np.ndarray, *, r: float, tol: float,
+               lat_u: np.ndarray, lat_v: np.ndarray, probes: int = 3) -> PassPoints:
+    """Cutter positions along a parameter path (uv float (m, 2), kind int (m − 1,)) with chord error ≤ tol.
+
+    Each move is probed at `probes` interior points; moves whose error would exceed tol are split.
+    """
+    if tol <= 0:
+        raise ValueError(f"chord tolerance must be positive, got {tol} mm")
+    verts, kinds = _vertices(np.asarray(uv, float), np.asarray(kind), lat_u, lat_v)
+    if len(verts) == 1:
+        fr = frame(patch, verts[:, 0], verts[:, 1])
+        return PassPoints(verts, fr.p, fr.n, fr.p + r * fr.n, np.zeros(1), np.zeros(0, np.int8), np.zeros(0))
+    for _ in range(8):
+        fr = frame(patch, verts[:, 0], verts[:, 1])
+        centre0 = fr.p + r * fr.n
+        t = (np.arange(1, probes + 1) / (probes + 1))[None, :, None]
+        puv = verts[:-1, None, :] * (1 - t) + verts[1:, None, :] * t
+        pf = frame(patch, puv[..., 0], puv[..., 1])
+        pc = pf.p + r * pf.n
+        lift = np.zeros(len(verts))
+        for _ in range(4):  # lifting one end changes the chord: settle the lifts
+            centre = centre0 + lift[:, None] * fr.n
+            dev = _deviation(centre, pc, pf.n, probes)
+            dip = np.max(np.maximum(dev, 0.0), axis=1)
+            if np.all(dip <= 1e-9):
+                break
+            need = np.zeros(len(verts))
+            need[:-1] = np.maximum(need[:-1], dip)
+            need[1:] = np.maximum(need[1:], dip)
+            lift += need
+        centre = centre0 + lift[:, None] * fr.n
+        dev = _deviation(centre, pc, pf.n, probes)
+        err = np.maximum(np.maximum(lift[:-1], lift[1:]), np.max(-np.minimum(dev, 0.0), axis=1))
+        err = np.maximum(err, np.max(np.maximum(dev, 0.0), axis=1))
+        split = err > tol * (1 + 1e-9)
+        if not np.any(split):
+            return PassPoints(verts, fr.p, fr.n, centre, lift, kinds, err)
+        mids = 0.5 * (verts[:-1][split] + verts[1:][split])
+        order = np.concatenate([np.arange(len(verts)), np.flatnonzero(split) + 0.5])
+        verts = np.concatenate([verts, mids])[np.argsort(order, kind="stable")]
+        kinds = np.concatenate([kinds, kinds[split]])[np.argsort(np.concatenate([np.arange(len(kinds)),
+                                                                               np.flatnonzero(split) + 0.5]),
+                                                                kind="stable")]
+    raise RuntimeError(f"chord error on patch {patch.id} did not settle below {tol} mm")

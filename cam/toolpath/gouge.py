@@ -1,0 +1,205 @@
+"""Cutter positions and straight moves checked against the whole part: every patch, not only the one cut.
+
+The clearance of a ball centre is its distance to the nearest surface minus r (negative = gouge).
+Distances are exact up to the Newton tolerance: a dense sample of each patch gives the start, then
+projected Newton steps on |S(u, v) − x|² settle on the foot point inside the parameter box. A ball
+that gouges a neighbouring patch (at a hollow edge between two patches) is lifted along the tool axis
+until it clears, as a drop cutter would; the shank (a cylinder of radius r above the ball centre) must
+not meet any patch either — where it would, the position cannot be reached from this side at all.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cam.toolpath.geometry import Patch
+
+__all__ = [
+    "SurfaceIndex",
+    "build_index",
+    "clearance",
+    "closest_points",
+    "lift_to_clear",
+    "move_clearance",
+    "shank_clear",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceIndex:
+    """Dense samples of every patch (machine frame) for start points and shank tests.
+
+    trees[i], uv[i]: KD-tree over patch i's samples and their parameters (n_i, 2);
+    points: float64 (N, 3) all samples; tree_xy: KD-tree of their (x, y); spacing: sample spacing, mm.
+    """
+
+    patches: tuple[Patch, ...]
+    trees: tuple[cKDTree, ...]
+    uv: tuple[np.ndarray, ...]
+    points: np.ndarray
+    tree_xy: cKDTree
+    spacing: float
+
+
+def _grid(patch: Patch, spacing: float, max_side: int = 400) -> np.ndarray:
+    (u0, u1), (v0, v1) = patch.domain
+    probe = np.linspace(0, 1, 9)
+    uu, vv = np.meshgrid(u0 + probe * (u1 - u0), v0 + probe * (v1 - v0), indexing="ij")
+    lu = np.max(np.linalg.norm(patch.surface.evaluate(uu, vv, du=1), axis=-1)) * (u1 - u0)
+    lv = np.max(np.linalg.norm(patch.surface.evaluate(uu, vv, dv=1), axis=-1)) * (v1 - v0)
+    nu = int(np.clip(np.ceil(lu / spacing), 2, max_side)) + 1
+    nv = int(np.clip(np.ceil(lv / spacing), 2, max_side)) + 1
+    uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
+    return np.stack([uu.ravel(), vv.ravel()], -1)
+
+
+def build_index(patches: list[Patch], *, spacing_mm: float) -> SurfaceIndex:
+    """Sample every patch about `spacing_mm` apart (capped at 400 per side) and index the samples."""
+    if spacing_mm <= 0:
+        raise ValueError(f"spacing_mm must be positive, got {spacing_mm}")
+    trees, uvs, pts = [], [], []
+    for p in patches:
+        uv = _grid(p, spacing_mm)
+        x = p.surface.evaluate(uv[:, 0], uv[:, 1])
+        trees.append(cKDTree(x))
+        uvs.append(uv)
+        pts.append(x)
+    points = np.concatenate(pts) if pts else np.zeros((0, 3))
+    return SurfaceIndex(tuple(patches), tuple(trees), tuple(uvs), points, cKDTree(points[:, :2]), float(spacing_mm))
+
+
+def _project(patch: Patch, x: np.ndarray, uv: np.ndarray, iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Projected Newton for the foot point of x (n, 3) on the patch from uv (n, 2): (uv, foot)."""
+    s = patch.surface
+    (u0, u1), (v0, v1) = patch.domain
+    lo, hi = np.array([u0, v0]), np.array([u1, v1])
+    uv = uv.copy()
+    for _ in range(iterations):
+        u, v = uv[:, 0], uv[:, 1]
+        p, su, sv = s.evaluate(u, v), s.evaluate(u, v, du=1), s.evaluate(u, v, dv=1)
+        suu, suv, svv = s.evaluate(u, v, du=2), s.evaluate(u, v, du=1, dv=1), s.evaluate(u, v, dv=2)
+        d = p - x
+        g = np.stack([np.einsum("ij,ij->i", su, d), np.einsum("ij,ij->i", sv, d)], -1)
+        a = np.einsum("ij,ij->i", su, su) + np.einsum("ij,ij->i", suu, d)
+        b = np.einsum("ij,ij->i", su, sv) + np.einsum("ij,ij->i", suv, d)
+        c = np.einsum("ij,ij->i", sv, sv) + np.einsum("ij,ij->i", svv, d)
+        det = a * c - b * b
+        bad = (det <= 1e-12 * (a * a + c * c + 1e-300)) | (a <= 0)
+        # Where the full Hessian is not positive, fall back to Gauss–Newton (first derivatives only).
+        a = np.where(bad, np.einsum("ij,ij->i", su, su), a)
+        b = np.where(bad, np.einsum("ij,ij->i", su, sv), b)
+        c = np.where(bad, np.einsum("ij,ij->i", sv, sv), c)
+        det = np.maximum(a * c - b * b, 1e-300)
+        step = -np.stack([c * g[:, 0] - b * g[:, 1], a * g[:, 1] - b * g[:, 0]], -1) / det[:, None]
+        # A coordinate pinned at its bound with the gradient pushing out stays there (projected Newton).
+        pinned = ((uv <= lo) & (g > 0)) | ((uv >= hi) & (g < 0))
+        step = np.where(pinned, 0.0, step)
+        one = pinned.any(axis=1)
+        if np.any(one):  # 1-D Newton along the free coordinate
+            free_u = ~pinned[:, 0]
+            step[one] = np.where(free_u[one, None],
+                                 np.stack([-g[one, 0] / np.maximum(a[one], 1e-300), np.zeros(one.sum())], -1),
+                                 np.stack([np.zeros(one.sum()), -g[one, 1] / np.maximum(c[one], 1e-300)], -1))
+            step[pinned] = 0.0
+        uv = np.clip(uv + step, lo, hi)
+        if np.max(np.abs(step), initial=0.0) < 1e-13:
+            break
+    return uv, s.evaluate(uv[:, 0], uv[:, 1])
+
+
+def closest_points(index: SurfaceIndex, x: np.ndarray, *, max_distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest surface point of every x (float (n, 3) mm) among all patches, within max_distance.
+
+    Returns (distance (n,) mm, inf beyond max_distance; patch index (n,) int, −1 when none;
+    uv (n, 2); foot (n, 3)).
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+    n = len(x)
+    best = np.full(n, np.inf)
+    which = np.full(n, -1)
+    best_uv = np.zeros((n, 2))
+    foot = np.full((n, 3), np.nan)
+    for i, (patch, tree, uvs) in enumerate(zip(index.patches, index.trees, index.uv)):
+        d0, j = tree.query(x, distance_upper_bound=max_distance + index.spacing)
+        near = np.isfinite(d0)
+        if not np.any(near):
+            continue
+        uv, f = _project(patch, x[near], uvs[j[near]])
+        d = np.linalg.norm(f - x[near], axis=1)
+        idx = np.flatnonzero(near)
+        better = d < best[idx]
+        idx = idx[better]
+        best[idx], which[idx], best_uv[idx], foot[idx] = d[better], i, uv[better], f[better]
+    best[best > max_distance] = np.inf
+    return best, which, best_uv, foot
+
+
+def clearance(index: SurfaceIndex, centres: np.ndarray, r: float) -> np.ndarray:
+    """Distance of each ball centre (float (n, 3)) to the part minus r, mm; negative where it gouges."""
+    d, *_ = closest_points(index, centres, max_distance=2 * r)
+    return np.where(np.isfinite(d), d - r, r)
+
+
+def lift_to_clear(index: SurfaceIndex, centres: np.ndarray, r: float, *, tol: float = 1e-6,
+                  max_lift: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Raise gouging balls along +Z until they clear every patch: (lifted centres (n, 3), lift (n,) mm).
+
+    Newton on the clearance with d(distance)/dz = the z part of the unit vector from foot to centre.
+    Lifts beyond max_lift (default r) are returned as NaN: such a position is left out, not forced.
+    """
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3).copy()
+    lift = np.zeros(len(c))
+    limit = r if max_lift is None else max_lift
+    active = np.arange(len(c))
+    for _ in range(40):
+        d, _, _, foot = closest_points(index, c[active], max_distance=2 * r)
+        short = np.isfinite(d) & (d < r - tol)
+        if not np.any(short):
+            break
+        active, d, foot = active[short], d[short], foot[short]
+        slope = np.clip((c[active, 2] - foot[:, 2]) / np.maximum(d, 1e-12), 0.2, 1.0)
+        dz = (r - d) / slope + tol
+        lift[active] += dz
+        c[active, 2] += dz
+        over = lift[active] > limit
+        lift[active[over]] = np.nan
+        active = active[~over]
+        if not len(active):
+            break
+    return c, lift
+
+
+def shank_clear(index: SurfaceIndex, centres: np.ndarray, r: float, *, tol: float = 1e-3) -> np.ndarray:
+    """True where no patch sample lies inside the shank (radius r − tol, above centre z + tol). bool (n,)."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    ok = np.ones(len(c), dtype=bool)
+    if not len(index.points):
+        return ok
+    hits = index.tree_xy.query_ball_point(c[:, :2], r - tol, return_sorted=False)
+    for i, h in enumerate(hits):
+        if h and np.any(index.points[h, 2] > c[i, 2] + tol):
+            ok[i] = False
+    return ok
+
+
+def move_clearance(index: SurfaceIndex, a: np.ndarray, b: np.ndarray, r: float, *, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest clearance along each straight move a → b (float (m, 3) ball centres) sampled ≤ step_mm apart.
+
+    Returns (clearance (m,) mm, the centre where it occurs (m, 3)).
+    """
+    a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(b, dtype=np.float64).reshape(-1, 3)
+    n = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / step_mm).astype(int), 1)
+    seg = np.repeat(np.arange(len(a)), n + 1)
+    t = np.concatenate([np.linspace(0, 1, k + 1) for k in n]) if len(a) else np.zeros(0)
+    x = a[seg] + t[:, None] * (b - a)[seg]
+    cl = clearance(index, x, r)
+    worst = np.full(len(a), np.inf)
+    np.minimum.at(worst, seg, cl)
+    at = np.zeros((len(a), 3))
+    first = np.flatnonzero(cl == worst[seg])
+    at[seg[first]] = x[first]
+    return worst, at

@@ -1,0 +1,196 @@
+"""The paper's Algorithm 1: the grid of iso-parameter lines whose concentric rings machine a patch.
+
+Starting from the four boundary lines of the parameter square, each side of the current ring
+takes the largest step into the patch whose scallop stays within the budget: sample k points on
+the side, turn the admissible arc gap at each (exact relation, signed normal curvature across the
+side) into a parameter step with the first fundamental form — the distance between the iso-lines
+v and v + Δv is Δv·√(EG − F²)/√E (eqs. 5–6; with F = 0 this is the paper's Δv·√G) — and take the
+smallest. The step is then checked against the real next line: each sample's ball centre is paired
+with the nearest ball centre on that line and the exact circle-intersection scallop is evaluated with
+the smaller of the two curvatures; the step shrinks until every sample holds. Rings are added until
+the parameter square is filled; when two opposite sides would cross, the last line sits between them
+where both gaps hold.
+
+`strategy="paper"` is the published variant used as the baseline: one global minimum interval per
+parameter direction for the whole patch, and at each ring corner Δs shrinks until the corner pocket
+holds. `strategy="adaptive"` (ours) takes the admissible step of each side of each ring and leaves the
+corner pockets to short corner excursions (see `rings.py`), which keeps the certificate with shorter paths.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cam.toolpath.geometry import Patch, frame, normal_curvature, principal_curvatures
+from cam.toolpath.scallop import arc_gap, fits_concave, scallop_from_half_chord
+
+__all__ = ["RingGrid", "TooConcave", "check_concavity", "global_steps", "ring_grid"]
+
+SIDES = ("v0", "u1", "v1", "u0")  # bottom, right, top, left of the parameter square
+
+
+class TooConcave(ValueError):
+    """The patch holds a concave radius of curvature not larger than the tool radius."""
+
+    def __init__(self, message: str, *, radius_mm: float, point: np.ndarray) -> None:
+        super().__init__(message)
+        self.radius_mm = radius_mm
+        self.point = point
+
+
+@dataclass(frozen=True)
+class RingGrid:
+    """Rings of one patch, outermost first.
+
+    rects: float64 (K, 4) = (u0, u1, v0, v1) of each ring; a ring with u0 == u1 or v0 == v1 is a line
+    (the innermost). side_scallop: float64 (K − 1, 4) predicted scallop (mm) of the gap between ring k
+    and k + 1 on the sides SIDES; side_steps: float64 (K − 1, 4) the parameter steps taken.
+    """
+
+    rects: np.ndarray
+    side_scallop: np.ndarray
+    side_steps: np.ndarray
+    strategy: str
+
+
+def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -> None:
+    """Raise `TooConcave` when a concave radius of curvature ≤ r occurs on a samples × samples grid."""
+    (u0, u1), (v0, v1) = patch.domain
+    uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
+    fr = frame(patch, uu, vv)
+    kmin, _ = principal_curvatures(fr)
+    bad = ~fits_concave(kmin, tool_radius_mm)
+    if np.any(bad):
+        i = np.unravel_index(np.argmin(kmin), kmin.shape)
+        radius = -1.0 / kmin[i]
+        raise TooConcave(f"concave radius of curvature {radius:.3f} mm is not larger than the tool radius "
+                         f"{tool_radius_mm:g} mm near {np.round(fr.p[i], 3).tolist()}; use a smaller ball",
+                         radius_mm=float(radius), point=fr.p[i])
+
+
+def _line(patch: Patch, along: str, fixed: float, q: np.ndarray):
+    """Frame on the iso-line: along 'u' means v = fixed and u = q."""
+    if along == "u":
+        return frame(patch, q, np.full_like(q, fixed))
+    return frame(patch, np.full_like(q, fixed), q)
+
+
+def _across(fr, along: str) -> tuple[np.ndarray, np.ndarray]:
+    """Normal curvature across the iso-line and the distance between iso-lines per parameter unit."""
+    root = np.sqrt(np.maximum(fr.e * fr.g - fr.f ** 2, 1e-300))
+    if along == "u":  # line v = const; across is S_v minus its part along S_u
+        kappa = normal_curvature(fr, -fr.f / fr.e, np.ones_like(fr.e))
+        return kappa, root / np.sqrt(fr.e)
+    kappa = normal_curvature(fr, np.ones_like(fr.e), -fr.f / fr.g)
+    return kappa, root / np.sqrt(fr.g)
+
+
+def _point_to_polyline(x: np.ndarray, poly: np.ndarray):
+    """Nearest point of polyline poly (m, 3) to each x (n, 3): distance (n,), segment (n,), fraction (n,)."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    t = np.einsum("nmk,mk->nm", x[:, None, :] - a[None], ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300)
+    t = np.clip(t, 0.0, 1.0)
+    d = np.linalg.norm(a[None] + t[..., None] * ab[None] - x[:, None, :], axis=-1)
+    j = np.argmin(d, axis=1)
+    rows = np.arange(len(x))
+    return d[rows, j], j, t[rows, j]
+
+
+def gap_scallop(patch: Patch, *, along: str, fixed0: float, fixed1: float, lo: float, hi: float,
+                r: float, samples: int) -> np.ndarray:
+    """Predicted scallop (mm, float64 (samples,)) between iso-lines fixed0 and fixed1 over [lo, hi].
+
+    Ball centres on line 0 are paired with the nearest point of the ball-centre polyline of line 1;
+    pairs whose nearest point is an end of that polyline (not a perpendicular foot) are left to the
+    corner checks. The exact relation takes the smaller curvature of the two ends of the gap.
+    """
+    q0 = np.linspace(lo, hi, samples)
+    q1 = np.linspace(lo, hi, 4 * samples)
+    f0, f1 = _line(patch, along, fixed0, q0), _line(patch, along, fixed1, q1)
+    c0, c1 = f0.p + r * f0.n, f1.p + r * f1.n
+    k0, _ = _across(f0, along)
+    k1, _ = _across(f1, along)
+    dist, seg, frac = _point_to_polyline(c0, c1)
+    k_foot = k1[seg] * (1 - frac) + k1[seg + 1] * frac
+    h = scallop_from_half_chord(dist / 2, r, np.minimum(k0, k_foot))
+    interior = ~(((seg == 0) & (frac <= 0)) | ((seg == len(q1) - 2) & (frac >= 1)))
+    return np.where(interior | (hi - lo <= 0), h, 0.0)
+
+
+def side_step(patch: Patch, *, along: str, fixed: float, lo: float, hi: float, direction: float, limit: float,
+              r: float, h: float, samples: int, start: float | None = None) -> tuple[float, float]:
+    """Largest checked step (parameter units, ≥ 0) from iso-line `fixed` towards `limit`, and its scallop."""
+    room = abs(limit - fixed)
+    if room <= 0:
+        return 0.0, 0.0
+    if start is None:
+        fr = _line(patch, along, fixed, np.linspace(lo, hi, samples))
+        kappa, speed = _across(fr, along)
+        step = float(np.min(arc_gap(h, r, kappa) / speed))
+    else:
+        step = start
+    step = min(step, room)
+    worst = 0.0
+    for _ in range(30):
+        worst = float(np.max(gap_scallop(patch, along=along, fixed0=fixed, fixed1=fixed + direction * step,
+                                         lo=lo, hi=hi, r=r, samples=samples)))
+        if worst <= h * (1 + 1e-9):
+            return step, worst
+        step *= 0.995 * np.sqrt(h / worst)  # the scallop grows about quadratically with the step
+    raise RuntimeError(f"no admissible step found on patch {patch.id} (worst scallop {worst:.4g} mm)")
+
+
+def global_steps(patch: Patch, *, r: float, h: float, samples: int) -> tuple[float, float]:
+    """The paper's one global minimum interval per direction: (Δu, Δv) over a samples × samples grid."""
+    (u0, u1), (v0, v1) = patch.domain
+    uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
+    fr = frame(patch, uu, vv)
+    ku, su = _across(fr, "v")  # lines u = const: step in u
+    kv, sv = _across(fr, "u")
+    return float(np.min(arc_gap(h, r, ku) / su)), float(np.min(arc_gap(h, r, kv) / sv))
+
+
+def ring_grid(patch: Patch, *, tool_radius_mm: float, scallop_mm: float, samples_per_line: int = 32,
+              strategy: str = "adaptive", corner_mm: float | None = None, max_rings: int = 5000) -> RingGrid:
+    """Algorithm 1 on one patch; raises `TooConcave` when the ball does not fit a hollow.
+
+    scallop_mm is the scallop share of the budget (the chord share is taken off by the caller);
+    corner_mm (paper strategy) the bound the corner pockets must hold, default scallop_mm.
+    """
+    if strategy not in ("adaptive", "paper"):
+        raise ValueError(f"strategy must be 'adaptive' or 'paper', got {strategy!r}")
+    if samples_per_line < 4:
+        raise ValueError(f"samples_per_line must be at least 4, got {samples_per_line}")
+    r, h, k = float(tool_radius_mm), float(scallop_mm), int(samples_per_line)
+    check_concavity(patch, r)
+    (u0, u1), (v0, v1) = patch.domain
+    start_u = start_v = None
+    if strategy == "paper":
+        start_u, start_v = global_steps(patch, r=r, h=h, samples=k)
+    rects, scallops, steps = [(u0, u1, v0, v1)], [], []
+    while len(rects) < max_rings:
+        a, b, c, d = rects[-1]
+        if a >= b or c >= d:
+            break
+        sc, wc = side_step(patch, along="u", fixed=c, lo=a, hi=b, direction=1, limit=d, r=r, h=h, samples=k, start=start_v)
+        sd, wd = side_step(patch, along="u", fixed=d, lo=a, hi=b, direction=-1, limit=c, r=r, h=h, samples=k, start=start_v)
+        sa, wa = side_step(patch, along="v", fixed=a, lo=c, hi=d, direction=1, limit=b, r=r, h=h, samples=k, start=start_u)
+        sb, wb = side_step(patch, along="v", fixed=b, lo=c, hi=d, direction=-1, limit=a, r=r, h=h, samples=k, start=start_u)
+        na, nb, nc, nd = a + sa, b - sb, c + sc, d - sd
+        if na >= nb:  # the sides would cross: one line where both gaps hold
+            na = nb = float(np.clip(0.5 * (a + b), b - sb, a + sa))
+        if nc >= nd:
+            nc = nd = float(np.clip(0.5 * (c + d), d - sd, c + sc))
+        if strategy == "paper":
+            from cam.toolpath.rings import shrink_for_corners
+
+            na, nb = shrink_for_corners(patch, (a, b, c, d), (na, nb, nc, nd), r=r,
+                                        h=h if corner_mm is None else corner_mm, samples=k)
+        rects.append((na, nb, nc, nd))
+        scallops.append((wc, wb, wd, wa))
+        steps.append((nc - c, b - nb, d - nd, na - a))
+    return RingGrid(rects=np.array(rects, dtype=np.float64), side_scallop=np.array(scallops).reshape(-1, 4),
+                    side_steps=np.array(steps).reshape(-1, 4), strategy=strategy)

@@ -1,0 +1,315 @@
+"""The planner: setups, Algorithm 1 rings, chord-checked cutter positions, gouge checks and linking.
+
+`plan_job` is the whole `plan` stage without its files: part-frame surfaces and setups in, per setup
+the passes (tool tips, machine frame), the certified scallop bound of every patch and the linked move
+list out. The certificate of a patch is the largest predicted scallop of any gap between its rings
+(exact relation, checked on the real next line) or of any corner pocket, plus the largest chord error
+of its moves; by construction it does not exceed the target.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cam.bspline import BSplineSurface
+from cam.toolpath.access import Assignment, Setup, assign_setups, machine_patches
+from cam.toolpath.chord import discretize, lattices
+from cam.toolpath.geometry import Patch, frame
+from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
+from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
+from cam.toolpath.link import MoveList, link_passes, order_patches
+from cam.toolpath.rings import ring_path
+
+__all__ = ["GOUGE_TOL_MM", "PatchPlan", "Plan", "SetupPlan", "plan_job", "plan_patch"]
+
+GOUGE_TOL_MM = 1e-5
+ROUNDING_MM = 0.5e-4 * 3 ** 0.5  # 4 decimals per axis move a ball centre by at most this
+CORNER_SHARE = 0.97
+
+
+class Unreachable(ValueError):
+    """No part of the patch can be machined from this setup."""
+  # corner pockets are held a little under the side gaps, which then set the maximum
+
+
+@dataclass
+class PatchPlan:
+    """One machined patch. passes: tool tips float64 (n_i, 3) per pass in cutting order (machine frame);
+    centres: the matching ball centres; certified_scallop_mm: the bound the planner certifies."""
+
+    patch: int
+    region: tuple[float, float, float, float]
+    passes: list[np.ndarray]
+    centres: list[np.ndarray]
+    certified_scallop_mm: float
+    side_scallop_mm: float
+    corner_scallop_mm: float
+    chord_error_mm: float
+    spacing_mm: tuple[float, float]
+    rings: int
+    excursions: int
+    path_length_mm: float
+    reach_fraction: float
+    lifted_points: int
+    dropped_points: int
+    strategy: str
+    time_s: float
+
+
+@dataclass
+class SetupPlan:
+    setup: Setup
+    patches: list[PatchPlan]
+    moves: MoveList
+    program: str
+
+
+@dataclass
+class Plan:
+    setups: list[SetupPlan]
+    unmachined: list[dict]
+    tool_radius_mm: float
+    scallop_height_mm: float
+    scallop_share_mm: float
+    chord_tolerance_mm: float
+    strategy: str
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def certified_scallop_mm(self) -> float:
+        vals = [p.certified_scallop_mm for s in self.setups for p in s.patches]
+        return max(vals) if vals else 0.0
+
+
+def _spacing(patch: Patch, rects: np.ndarray, steps: np.ndarray) -> tuple[float, float]:
+    """Smallest and largest pass interval in mm, from the side steps at the side midpoints."""
+    if not len(steps):
+        return 0.0, 0.0
+    a, b, c, d = rects[:-1].T
+    mu, mv = 0.5 * (a + b), 0.5 * (c + d)
+    uv = [(mu, c), (b, mv), (mu, d), (a, mv)]
+    out = []
+    for side, (u, v) in enumerate(uv):
+        fr = frame(patch, u, v)
+        root = np.sqrt(np.maximum(fr.e * fr.g - fr.f ** 2, 0))
+        speed = root / np.sqrt(fr.e) if side % 2 == 0 else root / np.sqrt(fr.g)
+        out.append(steps[:, side] * speed)
+    vals = np.concatenate(out)
+    vals = vals[vals > 1e-9]
+    return (float(vals.min()), float(vals.max())) if len(vals) else (0.0, 0.0)
+
+
+def _clear_path(index: SurfaceIndex, centres: np.ndarray, r: float, step: float):
+    """Lift gouging positions, split moves that gouge, drop what the tool cannot reach.
+
+    Returns a list of centre runs (each float (n_i, 3)) and counts (lifted, dropped).
+    """
+    cl = clearance(index, centres, r)
+    lifted = int(np.sum(cl < -GOUGE_TOL_MM))
+    if lifted:
+        bad = cl < -GOUGE_TOL_MM
+        fixed, lift = lift_to_clear(index, centres[bad], r, tol=GOUGE_TOL_MM / 10)
+        centres = centres.copy()
+        centres[bad] = fixed
+        centres[np.flatnonzero(bad)[np.isnan(lift)]] = np.nan
+    ok = np.all(np.isfinite(centres), axis=1)
+    ok[ok] = shank_clear(index, centres[ok], r)
+    dropped = int(np.sum(~ok))
+    runs, current = [], []
+    for c, good in zip(centres, ok):
+        if good:
+            current.append(c)
+        elif current:
+            runs.append(np.array(current))
+            current = []
+    if current:
+        runs.append(np.array(current))
+    out = []
+    for run in runs:
+        for _ in range(4):  # moves whose middle gouges get a lifted point where it is worst
+            if len(run) < 2:
+                break
+            worst, at = move_clearance(index, run[:-1], run[1:], r, step_mm=step)
+            bad = np.flatnonzero(worst < -GOUGE_TOL_MM)
+            if not len(bad):
+                break
+            fix, lift = lift_to_clear(index, at[bad], r, tol=GOUGE_TOL_MM / 10)
+            fix[np.isnan(lift)] = np.nan
+            run = np.insert(run, bad + 1, fix, axis=0)
+            lifted += len(bad)
+        else:
+            worst, _ = move_clearance(index, run[:-1], run[1:], r, step_mm=step)
+            run[np.flatnonzero(worst < -GOUGE_TOL_MM) + 1] = np.nan
+        good = np.all(np.isfinite(run), axis=1)
+        dropped += int(np.sum(~good))
+        start = 0
+        for i in np.flatnonzero(~good).tolist() + [len(run)]:
+            if i > start:
+                out.append(run[start:i])
+            start = i + 1
+    return out, lifted, dropped
+
+
+def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_fraction: float = 0.1,
+               samples_per_line: int = 32, strategy: str = "adaptive", reach_fraction: float = 1.0,
+               check_cancel=None) -> PatchPlan:
+    """Plan one patch in its setup's machine frame; raises `TooConcave` when the ball does not fit."""
+    t0 = time.perf_counter()
+    h_s, tol = (1 - chord_fraction) * h - ROUNDING_MM, chord_fraction * h
+    region = reachable_domain(patch, index, r=r, samples=samples_per_line)
+    if region[0] >= region[1] or region[2] >= region[3]:
+        raise Unreachable("the tool cannot reach the boundary of this patch without touching a neighbouring "
+                          "surface anywhere within half its width")
+    patch = Patch(patch.id, _restrict(patch.surface, region), patch.sign) if region != _box(patch) else patch
+    grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
+                     strategy=strategy, corner_mm=CORNER_SHARE * h_s)
+    path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
+                     check_cancel=check_cancel)
+    lat_u, lat_v = lattices(patch, r=r, tol=tol)
+    pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v)
+    runs, lifted, dropped = _clear_path(index, pts.centre, r, step=max(r / 4, 0.1))
+    z = np.array([0.0, 0.0, r])
+    passes = [run - z for run in runs]
+    length = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
+    side = float(grid.side_scallop.max()) if grid.side_scallop.size else 0.0
+    corner = float(path.corner_scallop.max()) if path.corner_scallop.size else 0.0
+    chord = float(pts.chord_error.max()) if pts.chord_error.size else 0.0
+    return PatchPlan(patch=patch.id, passes=passes, centres=runs,
+                     certified_scallop_mm=max(side, corner) + chord + ROUNDING_MM, region=region,
+                     side_scallop_mm=side, corner_scallop_mm=corner, chord_error_mm=chord,
+                     spacing_mm=_spacing(patch, grid.rects, grid.side_steps), rings=len(grid.rects),
+                     excursions=path.excursions, path_length_mm=length, reach_fraction=reach_fraction,
+                     lifted_points=lifted, dropped_points=dropped, strategy=strategy,
+                     time_s=time.perf_counter() - t0)
+
+
+def _box(patch: Patch) -> tuple[float, float, float, float]:
+    (u0, u1), (v0, v1) = patch.domain
+    return (u0, u1, v0, v1)
+
+
+def _restrict(surface, region):
+    """The same surface on a parameter sub-rectangle (knot insertion free: a reparameterising wrapper)."""
+    from cam.toolpath.geometry import SubSurface
+
+    return SubSurface(surface, region)
+
+
+def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: int = 32,
+                     steps: int = 24) -> tuple[float, float, float, float]:
+    """The parameter rectangle whose four boundary lines the tangent ball reaches everywhere.
+
+    At a hollow sharp edge the ball touching one patch cuts the next one: there the side moves inward
+    (bisection on the inset) until every contact point of its iso-line is reachable. What lies outside
+    is reported by verify as unreachable; the rings then run along the reachable boundary.
+    """
+    (u0, u1), (v0, v1) = patch.domain
+    box = [u0, u1, v0, v1]
+
+    def line_ok(along: str, fixed: float, lo: float, hi: float) -> bool:
+        q = np.linspace(lo, hi, samples)
+        fr = frame(patch, q, np.full_like(q, fixed)) if along == "u" else frame(patch, np.full_like(q, fixed), q)
+        c = fr.p + r * fr.n
+        return bool(np.all(clearance(index, c, r) >= -GOUGE_TOL_MM) and np.all(fr.n[:, 2] > 1e-6)
+                    and np.all(shank_clear(index, c, r)))
+
+    for side in range(4):
+        along = "u" if side >= 2 else "v"  # sides 0, 1 are u = const lines (running along v)
+        lo, hi = (box[2], box[3]) if along == "v" else (box[0], box[1])
+        start, other = box[side], box[side ^ 1]
+        if line_ok(along, start, lo, hi):
+            continue
+        ts = np.linspace(0, 1, steps + 1)[1:] * 0.5
+        good = next((t for t in ts if line_ok(along, start + t * (other - start), lo, hi)), None)
+        if good is None:
+            return box_empty(box)
+        a, b = good - 0.5 / steps, good
+        for _ in range(12):
+            mid = 0.5 * (a + b)
+            a, b = (a, mid) if line_ok(along, start + mid * (other - start), lo, hi) else (mid, b)
+        box[side] = start + b * (other - start)
+    return tuple(box)
+
+
+def box_empty(box):
+    return (box[0], box[0], box[2], box[2])
+
+
+def program_name(position: int) -> str:
+    """`program.nc` for the first setup, `program-setup2.nc`, ... after it (DESIGN)."""
+    return "program.nc" if position == 0 else f"program-setup{position + 1}.nc"
+
+
+def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup], *, tool_radius_mm: float,
+             scallop_height_mm: float, chord_fraction: float = 0.1, samples_per_line: int = 32,
+             strategy: str = "adaptive", clearance_mm: float = 5.0, retract_mm: float = 1.0,
+             min_reach: float = 0.5, signs: np.ndarray | None = None, progress=None, check_cancel=None) -> Plan:
+    """Plan every patch (part-frame surfaces with ids) over the setups; see the module docstring.
+
+    signs: +1/−1 per surface making S_u × S_v outward (see `geometry.orientation_signs`); default +1.
+    progress(fraction, message) and check_cancel() are called between patches.
+    """
+    r, h = float(tool_radius_mm), float(scallop_height_mm)
+    if not 0 < h < r:
+        raise ValueError(f"scallop height must lie in (0, r = {r}) mm, got {h}")
+    if not 0 < chord_fraction < 1:
+        raise ValueError(f"chord_fraction must lie in (0, 1), got {chord_fraction}")
+    if len(ids) != len(surfaces):
+        raise ValueError(f"{len(ids)} patch ids for {len(surfaces)} surfaces")
+    signs = np.ones(len(surfaces)) if signs is None else np.asarray(signs, dtype=np.float64)
+    progress = progress or (lambda f, m=None: None)
+    check_cancel = check_cancel or (lambda: None)
+    progress(0.02, "setups and accessibility")
+    unmachined = []
+    for i, s, g in zip(ids, surfaces, signs):  # a hollow the ball does not fit is reported, never cut
+        try:
+            check_concavity(Patch(int(i), s, float(g)), r)
+        except TooConcave as exc:
+            unmachined.append({"patch": int(i), "reason": str(exc)})
+    assignment: Assignment = assign_setups(ids, surfaces, signs, setups, r=r, min_reach=min_reach,
+                                           skip={u["patch"] for u in unmachined})
+    unmachined += assignment.unmachined
+    total = max(sum(len(v) for v in assignment.patches.values()), 1)
+    done = 0
+    out_setups = []
+    for position, setup in enumerate(assignment.setups):
+        mine = assignment.patches.get(setup.id, [])
+        patches = machine_patches(ids, surfaces, signs, setup)
+        index = build_index(patches, spacing_mm=max(r / 6, 0.2))
+        plans = []
+        for p in patches:
+            if p.id not in mine:
+                continue
+            check_cancel()
+            progress(0.05 + 0.9 * done / total, f"setup {setup.id}: patch {p.id}")
+            try:
+                plans.append(plan_patch(p, index, r=r, h=h, chord_fraction=chord_fraction,
+                                        samples_per_line=samples_per_line, strategy=strategy,
+                                        reach_fraction=assignment.reach.get(p.id, 1.0), check_cancel=check_cancel))
+            except (TooConcave, Unreachable) as exc:
+                unmachined.append({"patch": p.id, "reason": str(exc)})
+            done += 1
+        plans = [pp for pp in plans if pp.passes]
+        top = max(float(np.max(s.control_points[..., 2])) for s in (q.surface for q in patches))
+        clearance_z = top + clearance_mm
+        entries = np.array([pp.passes[0][0] for pp in plans]).reshape(-1, 3)
+        exits = np.array([pp.passes[-1][-1] for pp in plans]).reshape(-1, 3)
+        plans = [plans[i] for i in order_patches(entries, exits)]
+
+        def stay_down(a, b, index=index):
+            if np.linalg.norm(b - a) > 2 * r:
+                return False
+            z = np.array([0.0, 0.0, r])
+            worst, _ = move_clearance(index, (a + z)[None], (b + z)[None], r, step_mm=max(r / 8, 0.05))
+            return bool(worst[0] >= -GOUGE_TOL_MM)
+
+        moves = link_passes([(pp.patch, pp.passes) for pp in plans], clearance_z=clearance_z,
+                            retract_mm=retract_mm, stay_down=stay_down)
+        out_setups.append(SetupPlan(setup=setup, patches=plans, moves=moves, program=program_name(position)))
+    progress(0.97, "linking done")
+    return Plan(setups=out_setups, unmachined=unmachined, tool_radius_mm=r, scallop_height_mm=h,
+                scallop_share_mm=(1 - chord_fraction) * h - ROUNDING_MM, chord_tolerance_mm=chord_fraction * h,
+                strategy=strategy)

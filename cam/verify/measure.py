@@ -1,0 +1,261 @@
+"""Independent measurement of what a program leaves on the part: scallop, overcut, reach.
+
+Nothing here comes from the planner: the cutter motion is re-derived from the parsed program (ball
+centre = tool tip + r·Z), the surfaces are sampled on their own grid (spacing a fraction of the flat
+pass interval), and a sample counts as reachable only when the tangent ball there contains no other
+sample of the part and no sample stands inside the shank above it. For every sample the normal line
+is met with every nearby swept capsule: the first entry above the surface is the material left there
+(the scallop), and a capsule reaching below the surface is an overcut (gouge), for cutting and rapid
+moves separately. Around the highest samples the maximum is refined on finer local grids, since the
+cusp between two passes is a ridge that a grid only brushes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import maximum_filter
+from scipy.spatial import cKDTree
+
+from cam.gcode.parser import ParsedProgram
+from cam.toolpath.geometry import Patch
+from cam.verify.sweep import Sweep
+
+__all__ = ["Measurement", "heat_colors", "measure_program"]
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """report: the JSON-ready numbers; vertices float64 (n, 3), faces int64 (m, 3), scallop float64 (n,)
+    (NaN where unreachable, +inf where never reached) and patch int64 (n,) for the heat map."""
+
+    report: dict
+    vertices: np.ndarray
+    faces: np.ndarray
+    scallop: np.ndarray
+    patch: np.ndarray
+
+
+def _grid(patch: Patch, spacing: float, cap: int):
+    (u0, u1), (v0, v1) = patch.domain
+    g = np.linspace(0, 1, 9)
+    uu, vv = np.meshgrid(u0 + g * (u1 - u0), v0 + g * (v1 - v0), indexing="ij")
+    lu = np.max(np.linalg.norm(patch.surface.evaluate(uu, vv, du=1), axis=-1)) * (u1 - u0)
+    lv = np.max(np.linalg.norm(patch.surface.evaluate(uu, vv, dv=1), axis=-1)) * (v1 - v0)
+    nu = int(min(max(np.ceil(lu / spacing), 2), cap)) + 1
+    nv = int(min(max(np.ceil(lv / spacing), 2), cap)) + 1
+    return np.linspace(u0, u1, nu), np.linspace(v0, v1, nv)
+
+
+def _eval(patch: Patch, u: np.ndarray, v: np.ndarray):
+    p = patch.surface.evaluate(u, v)
+    su, sv = patch.surface.evaluate(u, v, du=1), patch.surface.evaluate(u, v, dv=1)
+    cross = np.cross(su, sv) * patch.sign
+    area = np.linalg.norm(cross, axis=-1)
+    return p, cross / np.maximum(area, 1e-300)[..., None], area
+
+
+class _Part:
+    """All samples of the part in one setup, for the reachability tests."""
+
+    def __init__(self, points: np.ndarray, cell: float, r: float, tol: float):
+        self.tree = cKDTree(points)
+        self.r, self.tol = r, tol
+        self.lo = points[:, :2].min(axis=0) - r
+        shape = np.ceil((points[:, :2].max(axis=0) + r - self.lo) / cell).astype(int) + 1
+        self.cell = cell
+        top = np.full(shape, -np.inf)
+        ij = ((points[:, :2] - self.lo) / cell).astype(int)
+        np.maximum.at(top, (ij[:, 0], ij[:, 1]), points[:, 2])
+        rad = max((r - tol) / cell - 0.75, 0.0)  # cells wholly inside the shank circle
+        k = int(np.floor(rad))
+        y, x = np.mgrid[-k:k + 1, -k:k + 1]
+        self.shank_top = maximum_filter(top, footprint=(x * x + y * y) <= rad * rad, mode="constant", cval=-np.inf)
+
+    def reachable(self, p: np.ndarray, n: np.ndarray) -> np.ndarray:
+        centre = p + self.r * n
+        nearest, _ = self.tree.query(centre, distance_upper_bound=self.r)
+        ij = np.clip(((centre[:, :2] - self.lo) / self.cell).astype(int), 0, np.array(self.shank_top.shape) - 1)
+        shank = self.shank_top[ij[:, 0], ij[:, 1]] <= centre[:, 2] + self.tol
+        return (n[:, 2] > 1e-6) & (nearest >= self.r - self.tol) & shank
+
+
+def heat_colors(scallop: np.ndarray, target: float) -> np.ndarray:
+    """uint8 (n, 3): blue → green → yellow → red up to the target, magenta above it, grey unreachable,
+    black never reached."""
+    x = np.clip(np.nan_to_num(scallop, nan=0.0, posinf=0.0) / target, 0, 1)
+    stops = np.array([[40, 60, 220], [40, 200, 80], [240, 220, 40], [220, 40, 30]], float)
+    pos = x * (len(stops) - 1)
+    k = np.minimum(pos.astype(int), len(stops) - 2)
+    f = (pos - k)[:, None]
+    rgb = stops[k] * (1 - f) + stops[k + 1] * f
+    rgb[np.nan_to_num(scallop, nan=0.0) > target * (1 + 1e-9)] = [230, 0, 230]
+    rgb[np.isnan(scallop)] = [150, 150, 150]
+    rgb[np.isposinf(scallop)] = [0, 0, 0]
+    return rgb.astype(np.uint8)
+
+
+def _golden(fn, lo: np.ndarray, hi: np.ndarray, iterations: int = 22) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised golden-section maximisation of fn over [lo, hi] (arrays of one shape): (argmax, max)."""
+    g = (np.sqrt(5) - 1) / 2
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = fn(x1), fn(x2)
+    for _ in range(iterations):
+        left = f1 >= f2
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+        x2n = np.where(left, x1, lo + g * (hi - lo))
+        x1n = np.where(left, hi - g * (hi - lo), x2)
+        fn_new = fn(np.where(left, x1n, x2n))
+        f1, f2 = np.where(left, fn_new, f2), np.where(left, f1, fn_new)
+        x1, x2 = x1n, x2n
+    take = f1 >= f2
+    return np.where(take, x1, x2), np.where(take, f1, f2)
+
+
+def _refine(patch: Patch, sweep: Sweep, solid: _Part, h: np.ndarray, ok: np.ndarray, gu: np.ndarray,
+            gv: np.ndarray, reach: float) -> tuple[float, np.ndarray]:
+    """Refine the grid maximum: the cusp between two passes is a ridge the grid only brushes.
+
+    Every sample that is a local maximum along u (or along v) starts a golden-section search along that
+    direction over its two neighbouring cells, which climbs onto the ridge wherever it crosses the row;
+    the best of those is polished on shrinking 2D grids. Returns (max, (u, v) where it is).
+    """
+    grid = np.where(ok & np.isfinite(h), h, -1.0).reshape(len(gu), len(gv))
+    if grid.max() < 0:
+        return -1.0, np.zeros(2)
+    floor = 0.5 * grid.max()
+
+    def value(u, v):
+        p, n, _ = _eval(patch, u, v)
+        out, _ = sweep.probe(p, n, reach)
+        return np.where(solid.reachable(p, n) & np.isfinite(out), out, -1.0)
+
+    best, where = float(grid.max()), np.array([gu[np.argmax(grid.max(axis=1))], gv[np.argmax(grid.max(axis=0))]])
+    cands = []
+    for axis, coords in ((0, gu), (1, gv)):
+        g = np.moveaxis(grid, axis, 0)
+        peak = np.zeros_like(g, dtype=bool)
+        peak[1:-1] = (g[1:-1] >= g[:-2]) & (g[1:-1] >= g[2:]) & (g[1:-1] >= floor)
+        i, j = np.nonzero(peak)
+        if not len(i):
+            continue
+        other = gv if axis == 0 else gu
+        fixed = other[j]
+        lo, hi = coords[i - 1], coords[i + 1]
+        fn = (lambda x, f=fixed: value(x, f)) if axis == 0 else (lambda x, f=fixed: value(f, x))
+        x, f = _golden(fn, lo, hi)
+        uv = np.stack([x, fixed] if axis == 0 else [fixed, x], -1)
+        cands.append((f, uv))
+    if cands:
+        f = np.concatenate([c[0] for c in cands])
+        uv = np.concatenate([c[1] for c in cands])
+        top = np.argsort(-f)[:32]
+        f, uv = f[top], uv[top]
+        (u0, u1), (v0, v1) = patch.domain
+        half = np.array([gu[1] - gu[0], gv[1] - gv[0]]) / 8
+        for _ in range(3):
+            o = np.linspace(-1, 1, 5)
+            ou, ov = np.meshgrid(o, o, indexing="ij")
+            qu = np.clip(uv[:, :1] + ou.ravel()[None] * half[0], u0, u1)
+            qv = np.clip(uv[:, 1:] + ov.ravel()[None] * half[1], v0, v1)
+            q = value(qu.ravel(), qv.ravel()).reshape(len(f), -1)
+            k = np.argmax(q, axis=1)
+            rows = np.arange(len(f))
+            better = q[rows, k] > f
+            f = np.where(better, q[rows, k], f)
+            uv = np.where(better[:, None], np.stack([qu[rows, k], qv[rows, k]], -1), uv)
+            half /= 3
+        i = int(np.argmax(f))
+        if f[i] > best:
+            best, where = float(f[i]), uv[i]
+    return best, where
+
+
+def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Patch], *, tool_radius_mm: float,
+                    target_mm: float, interval_mm: float, samples_per_interval: int = 12, refine: bool = True,
+                    reach_tol_mm: float = 1e-3, max_side: int = 1500, check_cancel=None) -> Measurement:
+    """Measure the program on the `machined` patches; `part` is every patch (for reachability).
+
+    All patches in the machine frame of the program's setup, signs outward. interval_mm: the flat pass
+    interval at the target (the sample spacing is interval_mm / samples_per_interval).
+    """
+    t0 = time.perf_counter()
+    r = float(tool_radius_mm)
+    if samples_per_interval < 2:
+        raise ValueError(f"samples_per_interval must be at least 2, got {samples_per_interval}")
+    check_cancel = check_cancel or (lambda: None)
+    spacing = interval_mm / samples_per_interval
+    z = np.array([0.0, 0.0, r])
+    a, b = program.start + z, program.end + z
+    reach = max(4 * target_mm, 0.25 * r)
+    cut = Sweep(a[~program.rapid], b[~program.rapid], r, step=r / 2)
+    air = Sweep(a[program.rapid], b[program.rapid], r, step=r / 2)
+    part_pts = np.concatenate([_eval(p, *[x.ravel() for x in np.meshgrid(*_grid(p, spacing, max_side), indexing="ij")])[0]
+                               for p in part])
+    solid = _Part(part_pts, cell=spacing, r=r, tol=reach_tol_mm)
+    verts, faces, values, owner, per_patch = [], [], [], [], []
+    all_h, all_w, all_reach, gouge_cut, gouge_air = [], [], [], 0.0, 0.0
+    best = (-1.0, None, None)
+    for patch in machined:
+        check_cancel()
+        gu, gv = _grid(patch, spacing, max_side)
+        uu, vv = np.meshgrid(gu, gv, indexing="ij")
+        p, n, area = _eval(patch, uu.ravel(), vv.ravel())
+        weight = area * (gu[-1] - gu[0]) * (gv[-1] - gv[0]) / (len(gu) * len(gv))
+        ok = solid.reachable(p, n)
+        h, g_cut = cut.probe(p, n, reach)
+        _, g_air = air.probe(p, n, reach)
+        gouge_cut, gouge_air = max(gouge_cut, float(g_cut.max(initial=0))), max(gouge_air, float(g_air.max(initial=0)))
+        hv = np.where(ok, h, np.nan)
+        finite = ok & np.isfinite(h)
+        h_max, at = _refine(patch, cut, solid, h, ok, gu, gv, reach) if refine else (
+            float(np.max(np.where(finite, h, -1.0), initial=-1.0)), np.zeros(2))
+        if h_max > best[0] and np.any(finite):
+            best = (h_max, patch.id, patch.surface.evaluate(at[:1], at[1:])[0])
+        reached = finite
+        per_patch.append({
+            "patch": patch.id, "samples": len(p), "max_scallop_mm": h_max if np.any(finite) else None,
+            "p99_scallop_mm": float(np.percentile(h[finite], 99)) if np.any(finite) else None,
+            "fraction_reachable": float(weight[ok].sum() / weight.sum()),
+            "fraction_reached": float(weight[reached].sum() / max(weight[ok].sum(), 1e-300)),
+            "max_gouge_mm": float(g_cut.max(initial=0)), "max_rapid_gouge_mm": float(g_air.max(initial=0)),
+        })
+        all_h.append(np.where(finite, h, np.nan))
+        all_w.append(weight)
+        all_reach.append(ok)
+        nu, nv = len(gu), len(gv)
+        base = sum(len(x) for x in verts)
+        ii, jj = np.meshgrid(np.arange(nu - 1), np.arange(nv - 1), indexing="ij")
+        q = (ii * nv + jj).ravel() + base
+        faces.append(np.concatenate([np.stack([q, q + nv, q + nv + 1], -1), np.stack([q, q + nv + 1, q + 1], -1)]))
+        verts.append(p)
+        values.append(hv)
+        owner.append(np.full(len(p), patch.id))
+    h_all = np.concatenate(all_h) if all_h else np.zeros(0)
+    w_all = np.concatenate(all_w) if all_w else np.zeros(0)
+    ok_all = np.concatenate(all_reach) if all_reach else np.zeros(0, bool)
+    fin = np.isfinite(h_all)
+    w_ok = w_all[ok_all].sum()
+    report = {
+        "tool_radius_mm": r, "target_scallop_mm": target_mm, "sample_spacing_mm": spacing,
+        "samples": len(h_all),
+        "max_scallop_mm": best[0] if best[1] is not None else None,
+        "max_at": {"patch": best[1], "xyz": [float(x) for x in best[2]]} if best[1] is not None else None,
+        "p99_scallop_mm": float(np.percentile(h_all[fin], 99)) if np.any(fin) else None,
+        "mean_scallop_mm": float(np.average(h_all[fin], weights=w_all[fin])) if np.any(fin) else None,
+        "fraction_over_target": float(w_all[fin & (np.nan_to_num(h_all) > target_mm * (1 + 1e-9))].sum() / max(w_ok, 1e-300)),
+        "fraction_unreachable": float(w_all[~ok_all].sum() / max(w_all.sum(), 1e-300)),
+        "fraction_never_reached": float(w_all[ok_all & ~fin].sum() / max(w_ok, 1e-300)),
+        "uncut_area_mm2": float(w_all[ok_all & ~fin].sum()),
+        "max_gouge_mm": gouge_cut, "max_rapid_gouge_mm": gouge_air,
+        "moves": {"cutting": len(cut.a), "rapid": len(air.a)},
+        "patches": per_patch, "time_s": time.perf_counter() - t0,
+    }
+    return Measurement(report=report,
+                       vertices=np.concatenate(verts) if verts else np.zeros((0, 3)),
+                       faces=np.concatenate(faces).astype(np.int64) if faces else np.zeros((0, 3), np.int64),
+                       scallop=np.concatenate(values) if values else np.zeros(0),
+                       patch=np.concatenate(owner) if owner else np.zeros(0, np.int64))

@@ -1,0 +1,104 @@
+"""The volume a ball sweeps along straight moves, met by lines: exact ray–capsule intervals.
+
+A straight move of the ball centre from A to B sweeps a capsule (a cylinder of radius r around AB
+capped by the two balls). A line p + t·n meets a capsule, which is convex, in one interval
+[t_in, t_out]: the hull of its intervals with the two balls and with the cylinder clipped to the
+slab between A and B. Pairs of lines and capsules come from a KD-tree over points spread along the
+moves, so only capsules that can reach a line within the asked range are evaluated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["Sweep", "capsule_intervals"]
+
+
+def _sphere(p, n, c, r):
+    w = p - c
+    b = np.einsum("ij,ij->i", n, w)
+    q = b * b - (np.einsum("ij,ij->i", w, w) - r * r)
+    root = np.sqrt(np.maximum(q, 0.0))
+    hit = q >= 0
+    return np.where(hit, -b - root, np.inf), np.where(hit, -b + root, -np.inf)
+
+
+def capsule_intervals(p: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """[t_in, t_out] of lines p + t·n (unit n) with capsules a → b of radius r, row by row.
+
+    p, n, a, b: float64 (m, 3); returns two float64 (m,) arrays; t_in = +inf, t_out = −inf where they miss.
+    """
+    t_in, t_out = _sphere(p, n, a, r)
+    s_in, s_out = _sphere(p, n, b, r)
+    t_in, t_out = np.minimum(t_in, s_in), np.maximum(t_out, s_out)
+    ab = b - a
+    length = np.linalg.norm(ab, axis=1)
+    ok = length > 1e-12
+    d = np.where(ok[:, None], ab / np.where(ok, length, 1.0)[:, None], 0.0)
+    w = p - a
+    nd, wd = np.einsum("ij,ij->i", n, d), np.einsum("ij,ij->i", w, d)
+    nperp, wperp = n - nd[:, None] * d, w - wd[:, None] * d
+    qa = np.einsum("ij,ij->i", nperp, nperp)
+    qb = np.einsum("ij,ij->i", nperp, wperp)
+    qc = np.einsum("ij,ij->i", wperp, wperp) - r * r
+    disc = qb * qb - qa * qc
+    good = ok & (qa > 1e-14) & (disc >= 0)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    qa_safe = np.where(good, qa, 1.0)
+    c_in, c_out = (-qb - root) / qa_safe, (-qb + root) / qa_safe
+    # Clip the cylinder to the slab 0 ≤ (w + t n)·d ≤ |AB|.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s0, s1 = (0.0 - wd) / nd, (length - wd) / nd
+    flat = np.abs(nd) < 1e-14
+    lo = np.where(flat, np.where((wd >= 0) & (wd <= length), -np.inf, np.inf), np.minimum(s0, s1))
+    hi = np.where(flat, np.where((wd >= 0) & (wd <= length), np.inf, -np.inf), np.maximum(s0, s1))
+    c_in, c_out = np.maximum(c_in, lo), np.minimum(c_out, hi)
+    cyl = good & (c_in <= c_out)
+    t_in = np.where(cyl, np.minimum(t_in, c_in), t_in)
+    t_out = np.where(cyl, np.maximum(t_out, c_out), t_out)
+    return t_in, t_out
+
+
+class Sweep:
+    """The capsules of a list of straight moves (ball centres a → b, float (m, 3)), ready to be probed."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, r: float, *, step: float):
+        self.a, self.b, self.r, self.step = np.asarray(a, float).reshape(-1, 3), np.asarray(b, float).reshape(-1, 3), r, step
+        k = np.maximum(np.ceil(np.linalg.norm(self.b - self.a, axis=1) / step).astype(np.int64), 1)
+        self.owner = np.repeat(np.arange(len(self.a)), k + 1)
+        offsets = np.concatenate([[0], np.cumsum(k + 1)[:-1]]) if len(k) else np.zeros(0, np.int64)
+        t = (np.arange(len(self.owner)) - np.repeat(offsets, k + 1)) / np.repeat(k, k + 1)
+        spread = self.a[self.owner] + t[:, None] * (self.b - self.a)[self.owner]
+        self.tree = cKDTree(spread) if len(spread) else None
+
+    def pairs(self, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+        """(point index, move index) pairs whose capsule axis passes within `reach` of the point (a superset)."""
+        if self.tree is None or not len(points):
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        near = cKDTree(points).sparse_distance_matrix(self.tree, reach + 0.5 * self.step, output_type="coo_matrix")
+        m = len(self.a)
+        key = near.row.astype(np.int64) * m + self.owner[near.col]
+        key.sort()
+        key = key[np.concatenate([[True], key[1:] != key[:-1]])] if len(key) else key
+        return key // m, key % m
+
+    def probe(self, p: np.ndarray, n: np.ndarray, reach: float, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+        """Per point p with outward unit normal n (float (k, 3)): the material left along n (first entry into
+        the swept volume, +inf when none within `reach`) and the overcut depth (≥ 0), both mm."""
+        scallop = np.full(len(p), np.inf)
+        gouge = np.zeros(len(p))
+        for s in range(0, len(p), chunk):
+            e = min(s + chunk, len(p))
+            i, j = self.pairs(p[s:e], self.r + reach)
+            if not len(i):
+                continue
+            t_in, t_out = capsule_intervals(p[s:e][i], n[s:e][i], self.a[j], self.b[j], self.r)
+            hit = (t_in <= t_out) & (t_out >= 0)
+            sc = np.full(e - s, np.inf)
+            np.minimum.at(sc, i, np.where(hit, np.maximum(t_in, 0.0), np.inf))
+            scallop[s:e] = np.where(sc <= reach, sc, np.inf)
+            g = np.zeros(e - s)
+            np.maximum.at(g, i, np.where(hit, -t_in, 0.0))
+            gouge[s:e] = g
+        return scallop, gouge

@@ -1,0 +1,73 @@
+"""The planner on analytic parts: certificates, a tool too large for a hollow, setups, the paper baseline."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cam.toolpath import analytic
+from cam.toolpath.access import Setup
+from cam.toolpath.geometry import Patch, frame, principal_curvatures
+from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
+from cam.toolpath.plan import plan_job
+
+EYE = [Setup(1, np.eye(3), np.zeros(3))]
+
+
+def test_curvature_of_analytic_parts():
+    fr = frame(Patch(1, analytic.cylinder(20.0, 10.0, 60.0)), np.array([0.5]), np.array([0.5]))
+    kmin, kmax = principal_curvatures(fr)
+    assert kmax[0] == pytest.approx(1 / 20, rel=1e-3) and kmin[0] == pytest.approx(0, abs=1e-6)
+    fr = frame(Patch(1, analytic.saddle(40.0)), np.array([0.5]), np.array([0.5]))
+    kmin, kmax = principal_curvatures(fr)
+    assert (kmin[0], kmax[0]) == pytest.approx((-1 / 40, 1 / 40), rel=1e-9)
+
+
+def test_tool_too_large_for_a_hollow_is_reported_not_cut():
+    trough = analytic.cylinder(2.5, 10.0, 100.0, concave=True)
+    with pytest.raises(TooConcave, match="not larger than the tool radius"):
+        check_concavity(Patch(7, trough), 3.0)
+    plan = plan_job([7, 8], [trough, analytic.plane(10, 10, z=-5.0)], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    assert [u["patch"] for u in plan.unmachined] == [7] and "radius of curvature 2.49" in plan.unmachined[0]["reason"]
+    assert [p.patch for s in plan.setups for p in s.patches] == [8]
+    # A smaller ball fits and machines it.
+    plan = plan_job([7], [trough], EYE, tool_radius_mm=1.5, scallop_height_mm=0.05)
+    assert not plan.unmachined and plan.setups[0].patches[0].certified_scallop_mm <= 0.05
+
+
+def test_certificate_holds_and_adaptive_beats_the_paper_on_a_dome():
+    dome = analytic.paraboloid(15.0, 16.0)
+    out = {}
+    for strategy in ("adaptive", "paper"):
+        plan = plan_job([1], [dome], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16, strategy=strategy)
+        pp = plan.setups[0].patches[0]
+        assert pp.certified_scallop_mm <= 0.16
+        out[strategy] = pp.path_length_mm
+    assert out["adaptive"] < 0.9 * out["paper"]
+
+
+def test_rings_fill_the_square_outermost_first():
+    grid = ring_grid(Patch(1, analytic.plane(20, 16)), tool_radius_mm=3.0, scallop_mm=0.144)
+    a, b, c, d = grid.rects.T
+    assert grid.rects[0].tolist() == [0, 1, 0, 1]
+    assert np.all(np.diff(a) >= 0) and np.all(np.diff(b) <= 0) and np.all(np.diff(c) >= 0) and np.all(np.diff(d) <= 0)
+    last = grid.rects[-1]
+    assert last[0] == last[1] or last[2] == last[3]
+    assert grid.side_scallop.max() <= 0.144 * (1 + 1e-9)
+
+
+def test_a_patch_facing_down_goes_to_the_opposite_setup():
+    top = analytic.plane(10, 10, z=5.0)
+    # The underside: the same plane flipped so its outward normal points down (−Z).
+    cp = top.control_points.copy()[::-1]
+    cp[..., 2] = -5.0
+    from cam.bspline import make_bspline_surface
+
+    bottom = make_bspline_surface(cp, top.knots_u, top.knots_v)
+    plan = plan_job([1, 2], [top, bottom], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    assert [s.setup.id for s in plan.setups] == [1, 2]
+    assert [[p.patch for p in s.patches] for s in plan.setups] == [[1], [2]]
+    assert plan.setups[1].program == "program-setup2.nc"
+    assert np.allclose(plan.setups[1].setup.rotation, np.diag([1.0, -1.0, -1.0]))
+    with pytest.raises(ValueError, match="scallop height"):
+        plan_job([1], [top], EYE, tool_radius_mm=3.0, scallop_height_mm=3.5)
