@@ -2,7 +2,6 @@
 
 This module holds metadata only; each stage's implementation is named by a
 dotted path and imported by the worker (it pulls in the geometry stack).
-Stages that are not implemented yet are not listed: a job runs the stages here.
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-#: The full pipeline of DESIGN.md, in order; `STAGES` holds the implemented subset.
+#: The pipeline of DESIGN.md, in order.
 DESIGN_ORDER = ("ingest", "reconstruct", "denoise", "remesh", "segment", "fit", "plan", "verify")
 
 
@@ -46,6 +45,71 @@ STAGES: tuple[StageSpec, ...] = (
         run="worker.stages.ingest:run_ingest",
         settings=("min_points", "max_points"),
         time_limit_s=900.0,
+    ),
+    StageSpec(
+        name="reconstruct",
+        version="1",
+        inputs=("cloud.ply",),
+        outputs=("mesh_raw.ply",),
+        param_groups=("reconstruct",),
+        run="worker.stages.reconstruct:run_reconstruct",
+        settings=("blas_threads",),
+        time_limit_s=1800.0,
+    ),
+    StageSpec(
+        name="denoise",
+        version="1",
+        inputs=("mesh_raw.ply",),
+        outputs=("mesh.ply", "denoise.json"),
+        param_groups=("denoise",),
+        run="worker.stages.denoise:run_denoise",
+        time_limit_s=1800.0,
+    ),
+    StageSpec(
+        name="remesh",
+        version="1",
+        inputs=("mesh.ply",),
+        outputs=("quads.obj", "remesh.json"),
+        param_groups=("remesh",),
+        run="worker.stages.remesh:run_remesh",
+        time_limit_s=1200.0,
+    ),
+    StageSpec(
+        name="segment",
+        version="1",
+        inputs=("quads.obj",),
+        outputs=("patches.json", "segments.ply", "setup.json"),
+        param_groups=("segment",),
+        run="worker.stages.segment:run_segment",
+        time_limit_s=900.0,
+    ),
+    StageSpec(
+        name="fit",
+        version="1",
+        inputs=("quads.obj", "patches.json", "mesh.ply"),
+        outputs=("surfaces.json", "surfaces.igs"),
+        param_groups=("fit",),
+        run="worker.stages.fit:run_fit",
+        time_limit_s=1800.0,
+    ),
+    StageSpec(
+        name="plan",
+        version="1",
+        inputs=("surfaces.json", "setup.json", "mesh.ply"),
+        # Segment gives one setup; the planner adds at most the opposite one.
+        outputs=("toolpath.json", "toolpath.csv", "setup.json", "program.nc", "program-setup2.nc"),
+        param_groups=("tool", "toolpath"),
+        run="worker.stages.plan:run_plan",
+        time_limit_s=1800.0,
+    ),
+    StageSpec(
+        name="verify",
+        version="1",
+        inputs=("program.nc", "program-setup2.nc", "setup.json", "surfaces.json", "mesh.ply"),
+        outputs=("verify.json", "scallop.ply"),
+        param_groups=("tool", "toolpath"),
+        run="worker.stages.verify:run_verify",
+        time_limit_s=1800.0,
     ),
 )
 

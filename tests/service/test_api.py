@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 
 from service.app import create_app
 from service.config import Settings
+from service.pipeline import DESIGN_ORDER
 from tests.conftest import ROOT, xyz_bytes
 
 PROBLEM = "application/problem+json"
@@ -67,7 +68,7 @@ def test_create_returns_202_location_and_job(client):
     assert job["status"] == "queued" and job["progress"] == 0.0
     assert job["params"]["tool"]["radius_mm"] == 2.5
     assert job["params"]["toolpath"]["scallop_height_mm"] == 0.16  # defaults filled in
-    assert [s["name"] for s in job["stages"]] == ["ingest"]
+    assert [s["name"] for s in job["stages"]] == list(DESIGN_ORDER)
     assert {a["name"] for a in job["artifacts"]} == {"input.xyz", "params.json"}
     assert client.get(f"/v1/jobs/{job['id']}").json()["id"] == job["id"]
     params = client.get(f"/v1/jobs/{job['id']}/artifacts/params.json").json()

@@ -1,0 +1,88 @@
+"""The `denoise` stage around cam.denoise: files, the enabled switch, cancel, errors, and params bounds."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pydantic
+import pytest
+import trimesh
+
+from cam.denoise import PARAMETER_BOUNDS
+from cam.io import read_ply, write_ply_mesh
+from service.params import DenoiseParams, JobParams
+from worker.context import StageCanceled, StageContext, StageError, StageSkipped
+from worker.stages.denoise import run_denoise
+
+
+def _noisy_box(tmp_path: Path) -> tuple[Path, np.ndarray, np.ndarray]:
+    box = trimesh.creation.box(extents=(20.0, 20.0, 20.0)).subdivide().subdivide().subdivide()
+    v, f = np.asarray(box.vertices), np.asarray(box.faces, dtype=np.int64)
+    rng = np.random.default_rng(7)
+    noisy = v + trimesh.Trimesh(v, f, process=False).vertex_normals * rng.normal(scale=0.3, size=(len(v), 1))
+    return write_ply_mesh(tmp_path / "mesh_raw.ply", noisy, f), noisy, f
+
+
+def _ctx(tmp_path: Path, src: Path, denoise: dict | None = None, **callbacks) -> StageContext:
+    out = tmp_path / "out"
+    out.mkdir(exist_ok=True)
+    return StageContext(job_id="j", stage="denoise", inputs={"mesh_raw.ply": src}, out_dir=out,
+                        params=JobParams.model_validate({"denoise": denoise or {}}).model_dump(), settings={},
+                        **callbacks)
+
+
+def test_stage_writes_a_denoised_mesh_and_its_report(tmp_path):
+    src, noisy, f = _noisy_box(tmp_path)
+    seen = []
+    out = run_denoise(_ctx(tmp_path, src, progress=lambda x, m=None: seen.append(x)))
+    assert set(out) == {"mesh.ply", "denoise.json"}
+    mesh = read_ply(out["mesh.ply"])
+    assert np.array_equal(mesh.faces, f) and mesh.points.shape == noisy.shape
+    # The box's faces are planes |x_i| = 10: denoising must bring the vertices closer to them.
+    before = np.abs(np.abs(noisy).max(axis=1) - 10.0).mean()
+    after = np.abs(np.abs(mesh.points).max(axis=1) - 10.0).mean()
+    assert after < 0.5 * before
+    report = json.loads(out["denoise.json"].read_text())
+    assert report["iterations"] >= 1 and seen and seen[-1] == 1.0
+
+
+def test_disabled_passes_the_mesh_on_unchanged(tmp_path):
+    src, _, _ = _noisy_box(tmp_path)
+    with pytest.raises(StageSkipped, match="enabled is false") as info:
+        run_denoise(_ctx(tmp_path, src, {"enabled": False}))
+    passed = info.value.outputs["mesh.ply"]
+    assert passed.read_bytes() == src.read_bytes() and not passed.is_symlink()
+
+
+def test_cancel_stops_the_stage(tmp_path):
+    src, _, _ = _noisy_box(tmp_path)
+
+    def cancel():
+        raise StageCanceled()
+
+    with pytest.raises(StageCanceled):
+        run_denoise(_ctx(tmp_path, src, check_cancel=cancel))
+
+
+def test_a_point_cloud_is_a_clear_error(tmp_path):
+    from cam.io import write_ply_points
+
+    src = write_ply_points(tmp_path / "mesh_raw.ply", np.random.default_rng(0).normal(size=(50, 3)))
+    with pytest.raises(StageError, match="no faces"):
+        run_denoise(_ctx(tmp_path, src))
+
+
+def test_jobparams_carry_the_cores_defaults_and_bounds():
+    defaults = DenoiseParams()
+    for name, (default, low, high, low_inclusive) in PARAMETER_BOUNDS.items():
+        assert getattr(defaults, name) == default, name
+        DenoiseParams(**{name: high})
+        with pytest.raises(pydantic.ValidationError):
+            DenoiseParams(**{name: high * 1.5 + 1})
+        if low_inclusive:
+            DenoiseParams(**{name: low})
+        else:
+            with pytest.raises(pydantic.ValidationError):
+                DenoiseParams(**{name: low})

@@ -1,0 +1,114 @@
+"""The fit stage on files as segment writes them: surfaces.json, surfaces.igs, and the failures a user can act on."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cam.bspline import surface_from_json
+from cam.io import write_ply_mesh
+from tests.cam.test_fit_shapes import case, cylinder, quads_of, ridge
+from worker.context import StageContext, StageError
+from worker.stages.fit import run_fit
+from service.params import JobParams
+
+
+def _job(tmp_path, shape, *, blocks, extent=(30, 15), quads=(14, 7), fit=None, valid=None, sharp=False,
+         shift=0.0):
+    V, ids, MV, MF = case(shape, extent, quads, refine=3)
+    if shift:
+        # The remesher's version of row 7, `shift` mm along s from where the mesh has it (still on the part).
+        s7 = 7 * extent[0] / quads[0]
+        V[ids[7]] = shape(np.full(quads[1] + 1, s7 + shift), np.linspace(0, extent[1], quads[1] + 1))
+    Q = quads_of(ids)
+    face_of = {tuple(sorted(q)): f for f, q in enumerate(Q.tolist())}
+    lines = [f"v {x:.17g} {y:.17g} {z:.17g}" for x, y, z in V.tolist()]
+    lines += ["f " + " ".join(str(i + 1) for i in q) for q in Q.tolist()]
+    (tmp_path / "quads.obj").write_text("\n".join(lines) + "\n")
+    patches = []
+    for n, (r0, r1) in enumerate(blocks):
+        g = ids[r0:r1 + 1]
+        faces = [face_of[tuple(sorted(q))] for q in quads_of(g).tolist()]
+        patches.append({"id": 10 * (n + 1), "faces": faces, "rows": r1 - r0, "cols": quads[1],
+                        "corners": [int(g[0, 0]), int(g[0, -1]), int(g[-1, -1]), int(g[-1, 0])],
+                        "sharp_boundary": False, **({} if valid is None else {"valid": valid[n], "problems": ["x"]})})
+    edges = [[int(a), int(b)] for a, b in zip(ids[7, :-1], ids[7, 1:])] if sharp else []
+    (tmp_path / "patches.json").write_text(json.dumps({"patches": patches, "base_faces": [], "sharp_edges": edges}))
+    write_ply_mesh(tmp_path / "mesh.ply", MV, MF)
+    out = tmp_path / "out"
+    out.mkdir()
+    names = ("quads.obj", "patches.json", "mesh.ply")
+    ctx = StageContext(job_id="j", stage="fit", inputs={n: tmp_path / n for n in names}, out_dir=out,
+                       params=JobParams.model_validate({"fit": fit or {}}).model_dump(), settings={})
+    return ctx, MV, MF
+
+
+def test_stage_writes_surfaces_json_and_iges(tmp_path):
+    ctx, MV, MF = _job(tmp_path, cylinder(25.0), blocks=[(0, 7), (7, 14)])
+    seen = []
+    ctx.progress = lambda f, m=None: seen.append(f)
+    out = run_fit(ctx)
+    assert set(out) == {"surfaces.json", "surfaces.igs"}
+    doc = json.loads(out["surfaces.json"].read_text())
+    assert [s["patch"] for s in doc["surfaces"]] == [10, 20]
+    assert doc["max_c0_gap_mm"] <= 1e-9 and doc["over_tolerance"] == [] and doc["units"] == "mm"
+    first = doc["surfaces"][0]
+    assert first["degree"] == [3, 3] and first["neighbours"] == [20] and first["within_tolerance"]
+    assert first["max_error_mm"] <= 0.032 and first["knots_u"][0] == 0.0 and first["knots_u"][-1] == 1.0
+    s = surface_from_json(first)
+    assert s.control_points.shape[2] == 3
+    assert out["surfaces.igs"].read_bytes().count(b"     128") == 4  # two entities, two DE lines each
+    assert seen == sorted(seen) and seen[-1] == 1.0
+
+
+def test_a_sharp_border_is_put_on_the_mesh_crease(tmp_path):
+    # The roof's crease is at s = 15 mm; the quad mesh has its sharp row 0.8 mm beside it.
+    ctx, MV, MF = _job(tmp_path, ridge(15.0, 0.8), blocks=[(0, 7), (7, 14)], sharp=True, shift=0.8)
+    doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
+    assert doc["over_tolerance"] == [] and doc["max_c0_gap_mm"] <= 1e-9
+    assert max(s["max_error_mm"] for s in doc["surfaces"]) < 0.01
+    # Without the sharp edges the border stays where the quads put it, and that is reported.
+    doc = json.loads((tmp_path / "patches.json").read_text())
+    doc["sharp_edges"] = []
+    (tmp_path / "patches.json").write_text(json.dumps(doc))
+    assert json.loads(run_fit(ctx)["surfaces.json"].read_text())["over_tolerance"] != []
+
+
+def test_invalid_patches_are_skipped_and_reported(tmp_path):
+    ctx, *_ = _job(tmp_path, cylinder(25.0), blocks=[(0, 7), (7, 14)], valid=[True, False])
+    doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
+    assert [s["patch"] for s in doc["surfaces"]] == [10]
+    assert doc["skipped"] == [{"patch": 20, "reason": "x"}]
+
+
+def test_failures_say_what_to_change(tmp_path):
+    ctx, *_ = _job(tmp_path, ridge(15.0, 0.8), blocks=[(0, 14)], fit={"tolerance_mm": 0.002, "max_refinements": 1,
+                                                                     "require_tolerance": True})
+    with pytest.raises(StageError, match="fit.tolerance_mm") as err:
+        run_fit(ctx)
+    assert set(err.value.outputs) == {"surfaces.json", "surfaces.igs"}  # kept for inspection
+    doc = json.loads((tmp_path / "patches.json").read_text())
+    doc["patches"][0]["faces"] = doc["patches"][0]["faces"][:-1]
+    doc["patches"][0].pop("grid", None)
+    (tmp_path / "patches.json").write_text(json.dumps(doc))
+    with pytest.raises(StageError, match="patch 10 is not a rectangular grid"):
+        run_fit(ctx)
+    (tmp_path / "quads.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(StageError, match=r"quads.obj: line 4: expected a quad \(4 corners\), got 3"):
+        run_fit(ctx)
+
+
+def test_cancel_stops_the_fit_between_patches(tmp_path):
+    from worker.context import StageCanceled
+
+    ctx, *_ = _job(tmp_path, cylinder(25.0), blocks=[(0, 7), (7, 14)])
+
+    def cancel():
+        raise StageCanceled()
+
+    ctx.check_cancel = cancel
+    with pytest.raises(StageCanceled):
+        run_fit(ctx)
+    assert not (ctx.out_dir / "surfaces.json").exists()

@@ -1,0 +1,142 @@
+"""QuadriFlow in a child process: checked results on the input surface, timeouts, retries, cancel, the stage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from cam.quadcheck import inspect_quad_mesh
+from cam.quadio import read_quad_obj
+from cam.quadmesh import face_areas, face_normals
+from tests.conftest import SHARED_DATA
+
+pytest.importorskip("pyQuadriFlow")
+
+from cam.remesh import QuadriflowFailed, boundary_loop_count, remesh_quads, run_quadriflow
+from service.params import JobParams
+
+
+def _signed_volume(v, f):
+    c = v[f].mean(axis=1)
+    return float((np.einsum("ij,ij->i", c, face_normals(v, f)) * face_areas(v, f)).sum() / 3)
+
+
+def _box_triangles():
+    mesh = trimesh.creation.box((40.0, 30.0, 20.0))
+    return mesh.subdivide().subdivide()
+
+
+def test_remesh_box_is_checked_closed_and_on_the_surface():
+    mesh = _box_triangles()
+    result = remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=0, timeout_s=120)
+    v, f = result.vertices, result.faces
+    report = inspect_quad_mesh(v, f)
+    assert report.problems == () and report.boundary_loop_lengths == () and report.components == 1
+    assert f.shape[1] == 4 and 150 <= len(f) <= 600
+    assert _signed_volume(v, f) == pytest.approx(40 * 30 * 20, rel=0.02)  # outward like the input
+    # Every vertex lies on the box surface (projection restored double precision).
+    d = np.abs(np.abs(v) - [20, 15, 10]).min(axis=1)
+    assert d.max() < 1e-9
+    assert result.report["hausdorff_mm"] < 0.05 * np.linalg.norm([40, 30, 20])
+    assert result.report["seed"] == 0 and result.report["attempts"] == 1
+
+
+def test_timeouts_are_retried_with_other_seeds_then_reported():
+    mesh = _box_triangles()
+    with pytest.raises(QuadriflowFailed, match="timed out"):
+        run_quadriflow(mesh.vertices, mesh.faces, target_faces=300, seed=0, timeout_s=0.01)
+    with pytest.raises(ValueError, match=r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 288 faces: timed out"):
+        remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=5, attempts=2, timeout_s=0.01)
+
+
+def test_poll_stops_the_child():
+    mesh = _box_triangles()
+
+    class Canceled(Exception):
+        pass
+
+    def poll():
+        raise Canceled
+
+    big = mesh.subdivide().subdivide()
+    with pytest.raises(Canceled):
+        run_quadriflow(big.vertices, big.faces, target_faces=20000, seed=0, timeout_s=60, poll=poll)
+
+
+def test_bad_inputs_are_named():
+    with pytest.raises(ValueError, match="triangles must be"):
+        remesh_quads(np.zeros((3, 3)), np.zeros((0, 3), dtype=int), target_faces=10)
+    with pytest.raises(ValueError, match="vertices must be"):
+        remesh_quads(np.full((3, 3), np.nan), np.array([[0, 1, 2]]), target_faces=10)
+
+
+def test_boundary_loops_of_a_triangle_mesh():
+    mesh = _box_triangles()
+    assert boundary_loop_count(mesh.faces, len(mesh.vertices)) == 0
+    assert boundary_loop_count(mesh.faces[2:], len(mesh.vertices)) == 1
+
+
+def test_remesh_stage_writes_quads_obj(tmp_path):
+    from cam.io import write_ply_mesh
+    from worker.context import StageContext
+    from worker.stages.remesh import run_remesh
+
+    mesh = _box_triangles()
+    src = write_ply_mesh(tmp_path / "mesh.ply", mesh.vertices, mesh.faces)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    seen = []
+    ctx = StageContext(job_id="j", stage="remesh", inputs={"mesh.ply": src}, out_dir=out_dir,
+                       params=JobParams.model_validate({"remesh": {"target_faces": 300}}).model_dump(), settings={},
+                       progress=lambda f, m=None: seen.append(f))
+    out = run_remesh(ctx)
+    assert set(out) == {"quads.obj", "remesh.json"}
+    v, f = read_quad_obj(out["quads.obj"])
+    assert inspect_quad_mesh(v, f).problems == ()
+    assert seen and max(seen) <= 1.0
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "fandisk_gt.obj").exists(), reason="../shared/data is absent")
+def test_remesh_fandisk_keeps_its_sharp_edges():
+    mesh = trimesh.load(SHARED_DATA / "fandisk_gt.obj", process=False)
+    result = remesh_quads(mesh.vertices * 10, mesh.faces, target_faces=1500, seed=0, timeout_s=120)
+    assert inspect_quad_mesh(result.vertices, result.faces).problems == ()
+    assert result.report["hausdorff_ratio"] < 0.03
+
+
+def test_the_child_does_not_outlive_a_killed_parent(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    import psutil
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import trimesh\n"
+        "from cam.remesh import run_quadriflow\n"
+        "m = trimesh.creation.icosphere(5)\n"
+        "run_quadriflow(m.vertices, m.faces, target_faces=400000, seed=0, timeout_s=600)\n"
+    )
+    root = str(Path(__file__).resolve().parents[2])
+    parent = subprocess.Popen([sys.executable, str(script)], cwd=root, env={**os.environ, "PYTHONPATH": root})
+    try:
+        deadline = time.monotonic() + 60
+        children = []
+        while time.monotonic() < deadline and not children:
+            children = psutil.Process(parent.pid).children()
+            time.sleep(0.1)
+        assert children, "the QuadriFlow child never started"
+        time.sleep(2.0)  # let it get busy inside QuadriFlow
+        assert all(c.is_running() for c in children)
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
+        _, alive = psutil.wait_procs(children, timeout=15)
+        assert not alive
+    finally:
+        if parent.poll() is None:
+            parent.kill()

@@ -1,0 +1,53 @@
+"""The `denoise` stage: MeshTGV on `mesh_raw.ply`, written as `mesh.ply` with its report in `denoise.json`."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from cam.denoise import DenoiseCanceled, denoise_mesh
+from cam.io import ReadError, read_ply, write_ply_mesh
+from worker.context import StageCanceled, StageContext, StageError, StageSkipped, write_json
+
+# JobParams.denoise fields passed to the core under the same names.
+_CORE_OPTIONS = ("alpha0", "alpha1", "penalty0", "penalty1", "vertex_iterations", "flip_repair_rounds",
+                 "max_iterations", "tolerance", "noise_reference_deg")
+
+
+def run_denoise(ctx: StageContext) -> dict[str, Path]:
+    params = ctx.params["denoise"]
+    if "mesh_raw.ply" not in ctx.inputs:
+        raise StageError("this job has no mesh_raw.ply to denoise (reconstruct produced none)")
+    if not params["enabled"]:
+        # A copy, not a link: the store takes ownership of what the stage leaves in its output folder.
+        passed = ctx.output("mesh.ply")
+        shutil.copyfile(ctx.inputs["mesh_raw.ply"], passed)
+        raise StageSkipped("denoise.enabled is false: mesh_raw.ply is passed on as mesh.ply",
+                           outputs={"mesh.ply": passed})
+    ctx.progress(0.0, "reading mesh_raw.ply")
+    try:
+        mesh = read_ply(ctx.inputs["mesh_raw.ply"])
+    except ReadError as exc:
+        raise StageError(f"could not read mesh_raw.ply: {exc}") from exc
+    if mesh.faces is None or not len(mesh.faces):
+        raise StageError("mesh_raw.ply has no faces; denoise needs a triangle mesh")
+
+    def should_cancel() -> bool:
+        ctx.check_cancel()  # raises StageCanceled, which passes through the core untouched
+        return False
+
+    try:
+        result = denoise_mesh(mesh.points, mesh.faces, progress=ctx.progress, should_cancel=should_cancel,
+                              **{k: params[k] for k in _CORE_OPTIONS})
+    except DenoiseCanceled as exc:
+        raise StageCanceled(str(exc)) from exc
+    except ValueError as exc:
+        raise StageError(f"cannot denoise mesh_raw.ply: {exc}") from exc
+    ctx.check_cancel()
+    out = {
+        "mesh.ply": write_ply_mesh(ctx.output("mesh.ply"), result.vertices, mesh.faces,
+                                   comments=[f"cloud2cnc denoise: MeshTGV, {result.iterations} iterations"]),
+        "denoise.json": write_json(ctx.output("denoise.json"), {"iterations": result.iterations, **result.report}),
+    }
+    ctx.progress(1.0, None)
+    return out

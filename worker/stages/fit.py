@@ -1,0 +1,120 @@
+"""The `fit` stage: one bicubic B-spline surface per patch, C0 across patches, as `surfaces.json` and `surfaces.igs`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cam.fit.grid import orient_grid, patch_grid
+from cam.fit.patches import FitResult, fit_patches
+from cam.io import ReadError, read_ply
+from cam.io.iges import write_iges
+from cam.quadio import read_quad_obj
+from worker.context import StageContext, StageError, write_json
+
+def run_fit(ctx: StageContext) -> dict[str, Path]:
+    params = ctx.params["fit"]
+    ctx.progress(0.02, "reading the quad mesh, patches and mesh")
+    try:
+        vertices, quads = read_quad_obj(ctx.inputs["quads.obj"])
+    except ReadError as exc:
+        raise StageError(f"could not read quads.obj: {exc}") from exc
+    patches, sharp_edges = _read_patches(ctx.inputs["patches.json"])
+    try:
+        mesh = read_ply(ctx.inputs["mesh.ply"])
+    except ReadError as exc:
+        raise StageError(f"could not read mesh.ply: {exc}") from exc
+    if mesh.faces is None or not len(mesh.faces):
+        raise StageError("mesh.ply has no triangles to fit the surfaces to")
+    grids, ids, skipped = [], [], []
+    in_patch = np.zeros(len(quads), dtype=bool)
+    for p in patches:
+        if p.get("valid") is False:
+            # Segment says this patch is no height-field grid; its quads are left out, not forced.
+            skipped.append({"patch": int(p["id"]), "reason": "; ".join(p.get("problems") or ["not a quad grid"])})
+            continue
+        try:
+            if p.get("grid") is not None:
+                grid = orient_grid(quads, p["grid"])
+            else:
+                grid = patch_grid(quads, p["faces"], corner=(p.get("corners") or [None])[0], rows=p.get("rows"),
+                                  cols=p.get("cols"))
+        except ValueError as exc:
+            raise StageError(f"patch {p['id']} is not a rectangular grid of quads ({exc}); "
+                             "rerun segment or change segment parameters") from exc
+        grids.append(grid)
+        ids.append(int(p["id"]))
+        in_patch[np.asarray(p["faces"], dtype=np.int64)] = True
+    if not grids:
+        raise StageError("segment left no valid patch to fit")
+    ctx.check_cancel()
+
+    def progress(fraction: float, message: str) -> None:
+        ctx.check_cancel()
+        ctx.progress(0.05 + 0.85 * fraction, message)
+
+    try:
+        result = fit_patches(vertices, grids, mesh.points, mesh.faces, tolerance_mm=float(params["tolerance_mm"]),
+                             other_quads=quads[~in_patch], sharp_edges=sharp_edges,
+                             crease_angle_deg=float(params["crease_angle_deg"]),
+                             snap_radius=float(params["snap_radius_quads"]),
+                             knot_spacing=float(params["knot_spacing_quads"]),
+                             samples_per_face=int(params["samples_per_face"]),
+                             smoothing_mm2=float(params["smoothing_mm2"]),
+                             normal_weight_mm=float(params["normal_weight_mm"]), iterations=int(params["iterations"]),
+                             max_refinements=int(params["max_refinements"]), on_progress=progress)
+    except ValueError as exc:
+        raise StageError(f"could not fit the patches: {exc}") from exc
+    ctx.progress(0.92, "writing surfaces.json and surfaces.igs")
+    shapes = [(g.shape[0] - 1, g.shape[1] - 1) for g in grids]
+    document = surfaces_document(result, ids, skipped, shapes)
+    out = {"surfaces.json": write_json(ctx.output("surfaces.json"), document),
+           "surfaces.igs": write_iges(ctx.output("surfaces.igs"), [p.surface for p in result.patches], labels=ids)}
+    over = [ids[k] for k in result.over_tolerance]
+    if over and params["require_tolerance"]:
+        worst = max(result.patches, key=lambda p: p.max_error_mm)
+        raise StageError(f"{len(over)} of {len(ids)} patches deviate from the mesh by more than "
+                         f"fit.tolerance_mm = {result.tolerance_mm} mm (worst: patch {ids[worst.index]}, "
+                         f"{worst.max_error_mm:.4f} mm); raise fit.tolerance_mm or fit.max_refinements, or set "
+                         "fit.require_tolerance to false to accept them", outputs=out)
+    ctx.progress(1.0, None if not over else f"{len(over)} patches over tolerance: {over}")
+    return out
+
+
+def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | None = None,
+                      shapes: list[tuple[int, int]] | None = None) -> dict[str, Any]:
+    """`surfaces.json`: DESIGN's fields per surface plus its quad grid (rows x cols), errors, neighbours,
+    and the largest C0 gap."""
+    surfaces = []
+    for p in result.patches:
+        rows, cols = shapes[p.index] if shapes else (None, None)
+        entry = {"patch": ids[p.index], **p.surface.to_json(), "rows": rows, "cols": cols,
+                 "max_error_mm": p.max_error_mm,
+                 "mean_error_mm": p.mean_error_mm, "surface_to_mesh_mm": p.surface_to_mesh_mm,
+                 "boundary_error_mm": p.boundary_error_mm, "within_tolerance": p.within_tolerance,
+                 "samples": p.samples, "refinements": p.refinements,
+                 "neighbours": [ids[k] for k in p.neighbours],
+                 "sides": {name: [ids[k] for k in nb] for name, nb in p.side_neighbours.items()}}
+        surfaces.append(entry)
+    return {"units": "mm", "tolerance_mm": result.tolerance_mm, "max_c0_gap_mm": result.max_gap_mm,
+            "boundary_curves": result.curves, "over_tolerance": [ids[k] for k in result.over_tolerance],
+            "skipped": list(skipped or []), "surfaces": surfaces}
+
+
+def _read_patches(path: Path) -> tuple[list[dict[str, Any]], np.ndarray]:
+    """The patches of `patches.json` and its sharp edges (int (k, 2) quad-mesh vertex pairs)."""
+    import json
+
+    try:
+        doc = json.loads(Path(path).read_text())
+        patches = list(doc["patches"])
+        for p in patches:
+            p["id"], p["faces"] = int(p["id"]), [int(f) for f in p["faces"]]
+        sharp = np.asarray(doc.get("sharp_edges") or [], dtype=np.int64).reshape(-1, 2)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise StageError(f"patches.json is not what segment writes: {exc}") from exc
+    if not patches:
+        raise StageError("segment found no patches to fit")
+    return patches, sharp

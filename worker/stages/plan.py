@@ -1,0 +1,146 @@
+"""The `plan` stage: surfaces.json + setup.json (+ mesh.ply for orientation) → toolpath.json, programs, CSV, setup.json."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cam.bspline import surface_from_json
+from cam.gcode import GENERATOR, write_program
+from cam.io.atomic import atomic_write
+from cam.toolpath.access import Setup
+from cam.toolpath.geometry import orientation_signs
+from cam.toolpath.plan import Plan, plan_job
+from worker.context import StageContext, StageError, write_json
+
+
+def load_surfaces(path: Path) -> tuple[list[int], list]:
+    """Patch ids and surfaces of a `surfaces.json`; StageError naming the bad entry."""
+    doc = json.loads(path.read_text())
+    ids, surfaces = [], []
+    for k, entry in enumerate(doc.get("surfaces", [])):
+        try:
+            surfaces.append(surface_from_json(entry))
+            ids.append(int(entry.get("patch", k)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise StageError(f"surfaces.json entry {k} is not a valid B-spline surface: {exc}") from exc
+    if not surfaces:
+        raise StageError("surfaces.json holds no surfaces: nothing to machine")
+    return ids, surfaces
+
+
+def load_setups(path: Path) -> tuple[dict[str, Any], list[Setup]]:
+    doc = json.loads(path.read_text())
+    setups = []
+    for k, entry in enumerate(doc.get("setups", [])):
+        try:
+            setups.append(Setup(id=int(entry.get("id", k + 1)), rotation=np.asarray(entry["rotation"], float).reshape(3, 3),
+                                translation=np.asarray(entry["translation"], float).reshape(3)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise StageError(f"setup.json setup {k} needs a 3x3 rotation and a translation: {exc}") from exc
+    if not setups:
+        raise StageError("setup.json holds no setup")
+    return doc, setups
+
+
+def outward_signs(ctx: StageContext, surfaces: list, first: Setup) -> np.ndarray:
+    """Orientation from the mesh when the job has one, else each patch seen from the first setup's tool axis."""
+    mesh = ctx.inputs.get("mesh.ply")
+    if mesh is not None:
+        from cam.io import read_input
+
+        data = read_input(mesh)
+        if data.faces is not None and len(data.faces):
+            return orientation_signs(surfaces, mesh_vertices=data.points, mesh_faces=data.faces)
+    return orientation_signs(surfaces, up=first.rotation.T @ np.array([0.0, 0.0, 1.0]))
+
+
+def _r(x, d=5):
+    return np.round(np.asarray(x, dtype=np.float64), d).tolist()
+
+
+def header(ctx: StageContext, plan: Plan, setup_id: int, patches: list[int], dialect: str) -> dict[str, str]:
+    tool = ctx.params["tool"]
+    return {
+        "cloud2cnc finishing program": f"job {ctx.job_id}, setup {setup_id}, patches {' '.join(map(str, patches))}",
+        "tool": f"ball end mill radius {plan.tool_radius_mm:.4f} mm, T{tool.get('tool_number', 1)}",
+        "target scallop": f"{plan.scallop_height_mm:.4f} mm",
+        "certified scallop bound": f"{plan.certified_scallop_mm:.6f} mm",
+        "budget split": f"scallop {plan.scallop_share_mm:.4f} mm + chord {plan.chord_tolerance_mm:.4f} mm",
+        "chord tolerance": f"{plan.chord_tolerance_mm:.4f} mm",
+        "units": "mm, absolute, tool tip in the machine frame (ball centre = tip + r Z)",
+        "dialect": dialect,
+        "generator": GENERATOR,
+    }
+
+
+def run_plan(ctx: StageContext) -> dict[str, Path]:
+    tool, tp = ctx.params["tool"], ctx.params["toolpath"]
+    ids, surfaces = load_surfaces(ctx.inputs["surfaces.json"])
+    setup_doc, setups = load_setups(ctx.inputs["setup.json"])
+    signs = outward_signs(ctx, surfaces, setups[0])
+    try:
+        plan = plan_job(ids, surfaces, setups, tool_radius_mm=tool["radius_mm"], scallop_height_mm=tp["scallop_height_mm"],
+                        chord_fraction=tp["chord_fraction"], samples_per_line=tp["samples_per_line"],
+                        strategy=tp["strategy"], clearance_mm=tp["clearance_mm"],
+                        retract_mm=tp["retract_mm"], min_reach=tp["min_reach_fraction"], signs=signs,
+                        progress=ctx.progress, check_cancel=ctx.check_cancel)
+    except ValueError as exc:
+        raise StageError(f"cannot plan with these parameters: {exc}") from exc
+    dialect = tp["dialect"]
+    out: dict[str, Path] = {}
+    rows = io.StringIO()
+    writer = csv.writer(rows)
+    writer.writerow(["setup", "patch", "pass", "x", "y", "z"])
+    setups_json, unmachined = [], list(plan.unmachined)
+    for k, sp in enumerate(plan.setups):
+        patch_ids = [pp.patch for pp in sp.patches]
+        text = write_program(sp.moves, dialect=dialect, header=header(ctx, plan, sp.setup.id, patch_ids, dialect),
+                             tool_number=tool["tool_number"], spindle_rpm=tool["spindle_rpm"],
+                             feed_mm_min=tool["feed_mm_min"], plunge_mm_min=tool["plunge_mm_min"],
+                             program_number=k + 1)
+        out[sp.program] = atomic_write(ctx.output(sp.program), [text.encode()])
+        for pp in sp.patches:
+            for j, tips in enumerate(pp.passes):
+                for x, y, z in tips:
+                    writer.writerow([sp.setup.id, pp.patch, j, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}"])
+        setups_json.append({"id": sp.setup.id, "rotation": sp.setup.rotation.tolist(),
+                            "translation": sp.setup.translation.tolist(), "program": sp.program,
+                            "patches": patch_ids, "unmachined": unmachined if k == 0 else []})
+    toolpath = {
+        "tool": {"shape": "ball", "radius_mm": plan.tool_radius_mm, "number": tool["tool_number"]},
+        "scallop_height_mm": plan.scallop_height_mm, "scallop_share_mm": plan.scallop_share_mm,
+        "chord_tolerance_mm": plan.chord_tolerance_mm, "strategy": plan.strategy,
+        "certified_scallop_mm": plan.certified_scallop_mm, "unmachined": unmachined,
+        "setups": [{
+            "id": sp.setup.id, "program": sp.program, "stats": sp.moves.stats(),
+            "patches": [{
+                "patch": pp.patch, "passes": [_r(t, 4) for t in pp.passes],
+                "certified_scallop_mm": pp.certified_scallop_mm,
+                "bound": {"relation": "exact circle intersection in the normal section",
+                          "side_gaps_mm": pp.side_scallop_mm, "corner_pockets_mm": pp.corner_scallop_mm,
+                          "chord_mm": pp.chord_error_mm},
+                "spacing_mm": {"min": pp.spacing_mm[0], "max": pp.spacing_mm[1]},
+                "path_length_mm": pp.path_length_mm, "rings": pp.rings, "corner_excursions": pp.excursions,
+                "reach_fraction": pp.reach_fraction, "lifted_points": pp.lifted_points,
+                "dropped_points": pp.dropped_points, "time_s": pp.time_s,
+            } for pp in sp.patches],
+        } for sp in plan.setups],
+    }
+    out["toolpath.json"] = write_json(ctx.output("toolpath.json"), toolpath)
+    out["toolpath.csv"] = atomic_write(ctx.output("toolpath.csv"), [rows.getvalue().encode()])
+    out["setup.json"] = write_json(ctx.output("setup.json"), {**setup_doc, "setups": setups_json,
+                                                              "unmachined": unmachined})
+    if not any(sp.patches for sp in plan.setups):
+        reasons = "; ".join(f"patch {u['patch']}: {u['reason']}" for u in unmachined) or "no patch reachable"
+        raise StageError(f"no patch can be machined with this tool and setup ({reasons})", outputs=out)
+    if plan.certified_scallop_mm > plan.scallop_height_mm * (1 + 1e-9):
+        raise StageError(f"the planner could only certify {plan.certified_scallop_mm:.4f} mm, above the target "
+                         f"{plan.scallop_height_mm:.4f} mm", outputs=out)
+    ctx.progress(1.0, None)
+    return out

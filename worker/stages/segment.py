@@ -1,0 +1,121 @@
+"""The `segment` stage: `quads.obj` → `patches.json`, `segments.ply`, `setup.json` (the paper's MST segmentation)."""
+
+from __future__ import annotations
+
+import colorsys
+from pathlib import Path
+
+import numpy as np
+
+from cam.io import ReadError
+from cam.quadio import read_quad_obj, write_ply_quads_colored
+from cam.quadmesh import face_normals
+from cam.segment import Segmentation, segment_quads
+from worker.context import StageContext, StageError, write_json
+
+BASE_COLOR = (90, 90, 90)
+INVALID_COLOR = (255, 0, 0)
+
+
+class SegmentationFailed(StageError):
+    """Some patch is not a sharp height field; ``outputs`` were written anyway, for inspection."""
+
+    def __init__(self, message: str, outputs: dict[str, Path]) -> None:
+        super().__init__(message, outputs=outputs)
+
+
+def patch_colors(labels: np.ndarray, invalid: set[int]) -> np.ndarray:
+    """uint8 (m, 3): a distinct colour per patch (golden-ratio hues), grey for the base, red for invalid patches."""
+    ids = np.arange(labels.max() + 1 if labels.size and labels.max() >= 0 else 0)
+    table = np.array([colorsys.hsv_to_rgb((0.13 + 0.618034 * i) % 1.0, 0.45 + 0.3 * ((i * 7) % 3) / 2,
+                                          0.95 - 0.15 * ((i * 5) % 2)) for i in ids]).reshape(-1, 3)
+    table = (table * 255).round().astype(np.uint8)
+    for i in invalid:
+        table[i] = INVALID_COLOR
+    colors = np.empty((len(labels), 3), dtype=np.uint8)
+    colors[labels < 0] = BASE_COLOR
+    colors[labels >= 0] = table[labels[labels >= 0]]
+    return colors
+
+
+def patches_document(seg: Segmentation, params: dict) -> dict:
+    """The `patches.json` body: DESIGN's fields plus grids, neighbours, boundary polylines and diagnostics."""
+    patches = []
+    for p in seg.patches:
+        patches.append({
+            "id": p.id, "faces": p.faces.tolist(), "rows": p.rows, "cols": p.cols, "corners": list(p.corners),
+            "sharp_boundary": bool(any(p.sharp_sides)), "sharp_sides": list(p.sharp_sides),
+            "neighbors": list(p.neighbors), "boundary": p.sides(), "grid": p.grid.tolist(),
+            "face_grid": p.face_grid.tolist(), "valid": p.valid, "problems": list(p.problems),
+        })
+    return {
+        "patches": patches, "base_faces": seg.base_faces.tolist(), "sharp_edges": seg.sharp_edges.tolist(),
+        "clipping_edges": seg.cut_edges.tolist(), "extraordinary_points": seg.extraordinary.tolist(),
+        "stats": seg.stats, "params": params,
+    }
+
+
+def setup_document(seg: Segmentation, vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """The `setup.json` body: one setup from the base (the plan stage refines it)."""
+    axis = seg.base.tool_axis
+    normals = face_normals(vertices, faces)
+    unmachined = []
+    for p in seg.patches:
+        if (normals[p.faces] @ axis).max() < 0:
+            unmachined.append({"patch": p.id, "reason": "faces away from the tool axis (an undercut for this setup)"})
+    base = seg.base
+    return {
+        "setups": [{
+            "id": 1, "rotation": base.rotation.tolist(), "translation": base.translation.tolist(),
+            "program": "program.nc", "tool_axis": axis.tolist(), "patches": [p.id for p in seg.patches],
+            "unmachined": unmachined,
+        }],
+        "base": {"faces": len(seg.base_faces), "clusters": list(base.clusters), "chosen": base.chosen},
+    }
+
+
+def _failure_message(seg: Segmentation) -> str:
+    bad = seg.invalid
+    parts = []
+    for p in bad[:5]:
+        sample = ", ".join(str(f) for f in p.faces[:4].tolist()) + (", …" if len(p.faces) > 4 else "")
+        parts.append(f"patch {p.id} ({len(p.faces)} quads: {sample}): {p.problems[0]}")
+    more = f"; and {len(bad) - 5} more" if len(bad) > 5 else ""
+    missing = seg.stats["sharp_in_domain"] - seg.stats["sharp_on_boundary"]
+    sharp = f"{missing} sharp edges are not on a patch boundary; " if missing else ""
+    return (f"{sharp}{len(bad)} of {len(seg.patches)} patches are not sharp height fields: " + "; ".join(parts)
+            + more + ". segments.ply shows them in red; try another remesh.target_faces or segment.sharp_angle_deg")
+
+
+def run_segment(ctx: StageContext) -> dict[str, Path]:
+    params = ctx.params["segment"]
+    ctx.progress(0.02, "reading quads.obj")
+    try:
+        vertices, faces = read_quad_obj(ctx.inputs["quads.obj"])
+    except ReadError as exc:
+        raise StageError(f"could not read quads.obj: {exc}") from exc
+    try:
+        seg = segment_quads(
+            vertices, faces, sharp_angle_deg=float(params["sharp_angle_deg"]), remove_base=bool(params["remove_base"]),
+            mu=float(params["mu"]), gamma=float(params["gamma"]), sc=float(params["sc"]), nc=float(params["nc"]),
+            ac=float(params["ac"]), base_clusters=int(params["base_clusters"]),
+            min_fragment_edges=int(params["min_sharp_fragment_edges"]), method=str(params["method"]),
+            seed=int(params["seed"]), progress=lambda f, m: ctx.progress(0.05 + 0.85 * f, m),
+            check_cancel=ctx.check_cancel,
+        )
+    except ValueError as exc:
+        raise StageError(f"cannot segment quads.obj: {exc}") from exc
+    ctx.progress(0.92, "writing")
+    invalid = {p.id for p in seg.invalid}
+    out = {
+        "segments.ply": write_ply_quads_colored(
+            ctx.output("segments.ply"), vertices, faces, patch_colors(seg.labels, invalid), labels=seg.labels,
+            comments=[f"cloud2cnc segment: {len(seg.patches)} patches, base faces in grey, invalid in red"],
+        ),
+        "patches.json": write_json(ctx.output("patches.json"), patches_document(seg, params)),
+    }
+    if not seg.ok:
+        raise SegmentationFailed(_failure_message(seg), out)
+    out["setup.json"] = write_json(ctx.output("setup.json"), setup_document(seg, vertices, faces))
+    ctx.progress(1.0, None)
+    return out
