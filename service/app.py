@@ -6,7 +6,6 @@ import logging
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI
-from fastapi.responses import RedirectResponse
 
 from service import problems
 from service.config import Settings, get_settings
@@ -14,7 +13,7 @@ from service.db import get_engine
 from service.deps import require_api_key
 from service.pipeline import load_stages
 from service.reconciler import Reconciler
-from service.routes import artifacts, health, jobs
+from service.routes import artifacts, dashboard, health, jobs
 
 VERSION = "0.1.0"
 log = logging.getLogger(__name__)
@@ -55,10 +54,6 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
     guarded = [Depends(require_api_key)]
     app.include_router(jobs.router, dependencies=guarded)
     app.include_router(artifacts.router, dependencies=guarded)
-
-    @app.get("/", include_in_schema=False)
-    def root() -> RedirectResponse:
-        # The dashboard lands with its own issue; until then the API's own docs are the front page.
-        return RedirectResponse("/docs")
+    app.include_router(dashboard.router)  # `/` and its static files; not part of the API schema
 
     return app
