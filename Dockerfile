@@ -6,9 +6,9 @@
 #              -e DATABASE_URL=postgresql://... cloud2cnc cloud2cnc worker     # a worker
 #
 # docker-compose.yml runs redis, postgres, the API and N workers from this image.
-# Every dependency installs from wheels on python:3.11-slim, so no compiler is needed. When torch becomes a
-# dependency, install the CPU build first (pip install torch --index-url https://download.pytorch.org/whl/cpu)
-# to keep the image small.
+# Every dependency installs from wheels on python:3.11-slim, so no compiler is needed. torch's CPU build is
+# installed first from PyTorch's own index: the package's bound (<2.14) is then met and pip does not pull the
+# multi-GB CUDA build. For GPU workers, build from an image with CUDA and drop that line.
 
 FROM python:3.11-slim
 
@@ -20,7 +20,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 
 # The source is only needed to build the package; the installed copy lives in site-packages.
 COPY . /tmp/src
-RUN pip install /tmp/src \
+RUN pip install "torch>=2.4,<2.14" --index-url https://download.pytorch.org/whl/cpu \
+    && pip install /tmp/src \
     && rm -rf /tmp/src \
     && useradd --system --uid 10001 --user-group --create-home --home-dir /home/cloud2cnc cloud2cnc \
     && mkdir -p /data \
