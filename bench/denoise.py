@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from machine_info import cpu_model  # bench/ is on the path when a script runs
+
 import numpy as np
 import scipy.sparse as sp
 import trimesh
@@ -120,14 +122,7 @@ def render(v, f, size=360, view=(1.0, 0.8, 0.6), up=(0.0, 0.0, 1.0)):
 
 
 def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     try:
         nproc = subprocess.run(["nproc"], check=False, capture_output=True, text=True).stdout.strip()
     except OSError:

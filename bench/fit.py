@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from machine_info import describe_machine  # bench/ is on the path when a script runs
 
 import numpy as np
 
@@ -28,20 +28,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 MESHES = ("fandisk_tgvresult", "block_tgvresult")
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return (f"{cpu}, {os.cpu_count()} logical CPUs (shared; load average {load:.1f} at the start), "
-            f"Python {platform.python_version()}, {platform.system()} {platform.release()}")
 
 
 def missing_stages() -> list[str]:
@@ -91,7 +77,7 @@ def bench_mesh(name: str, data: Path, work: Path) -> dict:
 def sampled_distances(doc: dict, mesh: tuple[np.ndarray, np.ndarray], n: int = 25) -> list[np.ndarray]:
     """Per surface, the distance (mm) to the mesh on an n x n grid of parameters."""
     from cam.bspline import surface_from_json
-    from cam.fit.closest import closest_points, mesh_index
+    from cam.closest import closest_points, mesh_index
 
     index = mesh_index(*mesh)
     t = np.linspace(0, 1, n)
@@ -161,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no test meshes at {data}; nothing written")
         return 2
     out.mkdir(parents=True, exist_ok=True)
-    header = machine()
+    header = describe_machine()
     results = []
     for name in args.meshes.split(","):
         with tempfile.TemporaryDirectory() as tmp:

@@ -31,49 +31,13 @@ from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from cam.closest import closest_on_triangles  # noqa: E402  (after the path is set)
+
 DATA = ROOT.parent / "shared" / "data"
 SHARP_DEG = 30.0
 
 
 # --- exact distances -------------------------------------------------------------------------
-
-def closest_on_triangles(p, a, b, c):
-    """Closest points on triangles (a, b, c) to points p, all (m, 3) (Ericson's region tests)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
-    bp = p - b
-    d3, d4 = (ab * bp).sum(1), (ac * bp).sum(1)
-    cp = p - c
-    d5, d6 = (ab * cp).sum(1), (ac * cp).sum(1)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = 1.0 / (va + vb + vc)
-        v = vb * denom
-        w = vc * denom
-        out = a + ab * v[:, None] + ac * w[:, None]
-        # edge regions
-        vab = d1 / (d1 - d3)
-        e_ab = a + ab * vab[:, None]
-        wac = d2 / (d2 - d6)
-        e_ac = a + ac * wac[:, None]
-        wbc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        e_bc = b + (c - b) * wbc[:, None]
-    m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-    out[m] = e_bc[m]
-    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    out[m] = e_ac[m]
-    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    out[m] = e_ab[m]
-    m = (d6 >= 0) & (d5 <= d6)
-    out[m] = c[m]
-    m = (d3 >= 0) & (d4 <= d3)
-    out[m] = b[m]
-    m = (d1 <= 0) & (d2 <= 0)
-    out[m] = a[m]
-    return out
-
 
 class MeshDistance:
     """Exact point-to-mesh distance: candidates by triangle centroid, then exact tests."""
@@ -92,7 +56,7 @@ class MeshDistance:
         face = np.zeros(len(p), dtype=np.int64)
         for j in range(self.k):
             t = self.tri[cand[:, j]]
-            q = closest_on_triangles(p, t[:, 0], t[:, 1], t[:, 2])
+            q, _ = closest_on_triangles(p, t[:, 0], t[:, 1], t[:, 2])
             d = np.linalg.norm(p - q, axis=1)
             better = d < best
             best[better] = d[better]

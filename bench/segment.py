@@ -13,11 +13,11 @@ the coloured patches per mesh into the output folder.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
 from pathlib import Path
+
+from machine_info import describe_machine  # bench/ is on the path when a script runs
 
 import numpy as np
 
@@ -32,20 +32,6 @@ from cam.segment import segment_quads
 #: QuadriFlow's face-count targets that land in 3,000-3,500 quads for these meshes (it undershoots Fandisk).
 CASES = (("fandisk_gt", 4000), ("block_gt", 3300), ("fandisk_tgvresult", 4000), ("block_tgvresult", 3300))
 METHODS = ("mst", "greedy", "motorcycle")
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return (f"{cpu}, {os.cpu_count()} logical CPUs (shared; load average {load:.1f} at the start), "
-            f"Python {platform.python_version()}, {platform.system()} {platform.release()}")
 
 
 def render(path: Path, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, title: str) -> None:
@@ -91,7 +77,7 @@ def main() -> int:
     args = parser.parse_args()
     wanted = set(args.cases.split(","))
     args.out.mkdir(parents=True, exist_ok=True)
-    header = machine()
+    header = describe_machine()
     rows = []
     notes = []
     for name, target in CASES:

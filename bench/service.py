@@ -45,6 +45,8 @@ import uuid
 from collections import Counter
 from pathlib import Path
 
+from machine_info import cpu_model  # bench/ is on the path when a script runs
+
 import httpx
 import numpy as np
 import psutil
@@ -427,14 +429,7 @@ def upload(server: Server, path: Path, *, chunked: bool, label: str) -> dict:
 # --------------------------------------------------------------------------- report
 
 def machine() -> dict:
-    model = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    model = cpu_model()
     try:
         nproc = subprocess.run(["nproc"], capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
@@ -556,7 +551,9 @@ def render(lat: dict, ups: list[dict], args, m: dict, total_s: float, server_err
          f"the table's order. POST sends a distinct 200-point `x y z` cloud each time with `params` = `{{}}`; GET "
          f"reads a random one of the jobs created by the POST phase before it. POST is measured at "
          f"{args.safe_clients} clients as well as at {args.clients}, and the {args.clients}-client POST phase runs "
-         f"last, with a `/healthz` check after it: this phase once hung the API (a pooled connection pinned by a session torn down on the blocked event loop, fixed in the commit "create_job: database, store and broker work off the event loop"), and the check shows it does not any more. "
+         f"last, with a `/healthz` check after it: this phase once hung the API (a pooled connection pinned by a "
+         f"session torn down on the blocked event loop, fixed in the commit 'create_job: database, store and "
+         f"broker work off the event loop'), and the check shows it does not any more. "
          f"For memory, a fresh server (same settings) gets a {args.upload_mb} MiB binary little-endian PLY "
          f"(float32 x y z), written to the temporary directory first and streamed as the `file` part of a "
          f"hand-built multipart body from a generator reading 1 MiB at a time (the benchmark's own RSS grew by at "

@@ -1,25 +1,56 @@
-"""Exact closest points on a triangle mesh, for projecting vertices and measuring Hausdorff distances.
+"""Exact closest points on a triangle mesh: projections, Hausdorff distances and every fit error.
 
-Candidates come from a k-d tree on triangle centroids: the nearest few
-centroids give an upper bound ``d`` on the distance, and every triangle that
-can hold a point within ``d`` has its centroid within ``d + R`` (``R`` the
-largest centroid-to-corner distance), so the ball query misses none.
+A k-d tree on triangle centroids proposes candidates; a candidate set is only
+accepted once it provably holds the closest triangle (every triangle farther
+than the nearest-vertex distance plus the largest centroid-to-corner radius is
+excluded), so the answer is exact, not a nearest-vertex approximation.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["closest_points", "point_triangle_closest"]
+__all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles"]
 
 
-def point_triangle_closest(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Closest points of triangles ``abc`` to points ``p``, row by row.
+@dataclass(frozen=True, eq=False)
+class MeshIndex:
+    """A triangle mesh prepared for closest-point queries (build once, query often)."""
 
-    All inputs float64 (k, 3); returns float64 (k, 3). Uses the Voronoi
-    regions of the triangle (vertices, edges, face) in barycentric terms;
-    degenerate triangles fall back to their closest edge or vertex.
+    vertices: np.ndarray  # float64 (n, 3), mm
+    faces: np.ndarray  # int64 (m, 3)
+    vertex_tree: cKDTree
+    centroid_tree: cKDTree
+    radius: float  # largest centroid-to-corner distance, mm
+
+
+def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
+    """Build the query structure; vertices float64 (n, 3) mm, faces int (m, 3)."""
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
+        raise ValueError(f"need vertices (n, 3) and triangles (m, 3), got {V.shape} and {F.shape}")
+    if F.size == 0:
+        raise ValueError("the mesh has no triangles")
+    if F.min() < 0 or F.max() >= len(V):
+        raise ValueError(f"triangle indices must lie in 0..{len(V) - 1}, got {F.min()}..{F.max()}")
+    used = np.unique(F)
+    centroids = V[F].mean(axis=1)
+    radius = float(np.linalg.norm(V[F] - centroids[:, None, :], axis=2).max())
+    return MeshIndex(vertices=V, faces=F, vertex_tree=cKDTree(V[used]), centroid_tree=cKDTree(centroids),
+                     radius=radius)
+
+
+def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point on triangle (a, b, c) to p, row by row: points (n, 3) and barycentrics (n, 3).
+
+    All inputs float64 (n, 3). Voronoi-region classification of p against the
+    triangle's corners and edges; a degenerate (zero-area) triangle gives the
+    closest point of its three edges.
     """
     ab, ac, ap = b - a, c - a, p - a
     d1 = np.einsum("ij,ij->i", ab, ap)
@@ -33,98 +64,94 @@ def point_triangle_closest(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.nd
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
-    out = np.empty_like(p)
-    done = np.zeros(len(p), dtype=bool)
 
-    def take(mask: np.ndarray, value: np.ndarray) -> None:
-        # A degenerate triangle can make a region's formula 0/0: leave that row to the fallback.
-        sel = mask & ~done & np.isfinite(value).all(axis=1)
-        out[sel] = value[sel]
-        done[sel] = True
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        take((d1 <= 0) & (d2 <= 0), a)
-        take((d3 >= 0) & (d4 <= d3), b)
-        t_ab = d1 / (d1 - d3)
-        take((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + t_ab[:, None] * ab)
-        take((d6 >= 0) & (d5 <= d6), c)
-        t_ac = d2 / (d2 - d6)
-        take((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + t_ac[:, None] * ac)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        take((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), b + t_bc[:, None] * (c - b))
-        denom = va + vb + vc
-        v = vb / denom
-        w = vc / denom
-        inside = a + v[:, None] * ab + w[:, None] * ac
-        take(np.ones(len(p), dtype=bool), inside)
-    if not done.all():
-        # Only degenerate (zero-area) triangles get here: take the best of their three edges.
-        rest = ~done
-        out[rest] = _closest_on_edges(p[rest], a[rest], b[rest], c[rest])
-    return out
+    total = va + vb + vc
+    v_in, w_in = _ratio(vb, total), _ratio(vc, total)
+    t_ab = _ratio(d1, d1 - d3)
+    t_ac = _ratio(d2, d2 - d6)
+    t_bc = _ratio(d4 - d3, (d4 - d3) + (d5 - d6))
+    conditions = [
+        (d1 <= 0) & (d2 <= 0),
+        (d3 >= 0) & (d4 <= d3),
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+        (d6 >= 0) & (d5 <= d6),
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0),
+        (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+    ]
+    one, zero = np.ones_like(d1), np.zeros_like(d1)
+    bv = np.select(conditions, [zero, one, t_ab, zero, zero, 1 - t_bc], default=v_in)
+    bw = np.select(conditions, [zero, zero, zero, one, t_ac, t_bc], default=w_in)
+    bary = np.stack([1.0 - bv - bw, bv, bw], axis=1)
+    points = a + bv[:, None] * ab + bw[:, None] * ac
+    flat = np.linalg.norm(np.cross(ab, ac), axis=1) == 0
+    if flat.any():
+        # The region tests divide by the (zero) area there: take the best of the three edges instead.
+        points[flat], bary[flat] = _closest_on_edges(p[flat], a[flat], b[flat], c[flat])
+    return points, bary
 
 
-def _segment_closest(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ab = b - a
-    den = np.einsum("ij,ij->i", ab, ab)
-    t = np.where(den > 0, np.einsum("ij,ij->i", p - a, ab) / np.where(den > 0, den, 1.0), 0.0)
-    return a + np.clip(t, 0.0, 1.0)[:, None] * ab
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    return np.divide(num, den, out=np.zeros_like(num), where=den != 0)
 
 
-def _closest_on_edges(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    cands = np.stack([_segment_closest(p, a, b), _segment_closest(p, b, c), _segment_closest(p, c, a)])
-    dist = np.linalg.norm(cands - p[None], axis=2)
-    return cands[np.argmin(dist, axis=0), np.arange(len(p))]
+def _closest_on_edges(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point on the edges ab, bc, ca and its barycentrics (the degenerate-triangle case)."""
+    points, barys = [], []
+    for k, (s, e) in enumerate(((a, b), (b, c), (c, a))):
+        se = e - s
+        t = np.clip(_ratio(np.einsum("ij,ij->i", p - s, se), np.einsum("ij,ij->i", se, se)), 0.0, 1.0)
+        bary = np.zeros((len(p), 3))
+        bary[:, k], bary[:, (k + 1) % 3] = 1.0 - t, t
+        points.append(s + t[:, None] * se)
+        barys.append(bary)
+    points, barys = np.stack(points), np.stack(barys)
+    best = np.argmin(np.linalg.norm(points - p[None], axis=2), axis=0)
+    rows = np.arange(len(p))
+    return points[best, rows], barys[best, rows]
 
 
-def closest_points(
-    points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, *, chunk: int = 4096
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For each point, the closest point on a triangle mesh.
+def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closest mesh points to `points` float64 (n, 3) mm.
 
-    Parameters
-    ----------
-    points
-        float (k, 3), mm.
-    vertices, triangles
-        The mesh: float (n, 3) and int (m, 3), m ≥ 1.
-    chunk
-        Points handled per batch (bounds memory).
-
-    Returns
-    -------
-    closest float64 (k, 3), distance float64 (k,) in mm, triangle int64 (k,).
+    Returns closest float64 (n, 3), distance float64 (n,), triangle int64 (n,), barycentric float64 (n, 3).
     """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    verts = np.asarray(vertices, dtype=np.float64)
-    tris = np.asarray(triangles, dtype=np.int64)
-    if len(tris) == 0:
-        raise ValueError("closest_points needs at least one triangle, got none")
-    corners = verts[tris]
-    centroids = corners.mean(axis=1)
-    radius = float(np.linalg.norm(corners - centroids[:, None], axis=2).max())
-    tree = cKDTree(centroids)
-    k = min(8, len(tris))
-    closest = np.empty_like(pts)
-    distance = np.empty(len(pts))
-    which = np.empty(len(pts), dtype=np.int64)
-    for s in range(0, len(pts), chunk):
-        p = pts[s:s + chunk]
-        _, near = tree.query(p, k=k)
-        near = near.reshape(len(p), -1)
-        rows = np.repeat(np.arange(len(p)), near.shape[1])
-        q = point_triangle_closest(p[rows], *(corners[near.reshape(-1), j] for j in range(3)))
-        bound = np.linalg.norm(q - p[rows], axis=1).reshape(len(p), -1).min(axis=1)
-        groups = tree.query_ball_point(p, bound + radius + 1e-12)
-        lens = np.fromiter((len(g) for g in groups), dtype=np.int64, count=len(groups))
-        rows = np.repeat(np.arange(len(p)), lens)
-        cand = np.fromiter((t for g in groups for t in g), dtype=np.int64, count=int(lens.sum()))
-        q = point_triangle_closest(p[rows], corners[cand, 0], corners[cand, 1], corners[cand, 2])
-        d = np.linalg.norm(q - p[rows], axis=1)
-        # Per point, the candidate of least distance: sort by (row, distance) and take each row's first.
-        order = np.lexsort((d, rows))
-        first = order[np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]]
-        closest[s:s + len(p)] = q[first]
-        distance[s:s + len(p)] = d[first]
-        which[s:s + len(p)] = cand[first]
-    return closest, distance, which
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(P)
+    out_pt, out_d = np.empty((n, 3)), np.empty(n)
+    out_f, out_b = np.empty(n, dtype=np.int64), np.empty((n, 3))
+    for start in range(0, n, chunk):
+        sl = slice(start, min(n, start + chunk))
+        out_pt[sl], out_d[sl], out_f[sl], out_b[sl] = _closest_chunk(index, P[sl])
+    return out_pt, out_d, out_f, out_b
+
+
+def _closest_chunk(index: MeshIndex, P: np.ndarray):
+    n, m = len(P), len(index.faces)
+    bound = index.vertex_tree.query(P)[0] + index.radius  # no closer triangle has its centroid farther
+    result = (np.empty((n, 3)), np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros((n, 3)))
+    todo = np.arange(n)
+    k = min(8, m)
+    while todo.size:
+        dist, cand = index.centroid_tree.query(P[todo], k=k)
+        dist, cand = dist.reshape(len(todo), -1), cand.reshape(len(todo), -1)
+        # Candidates are complete when the k-th centroid is beyond the bound (or all triangles were taken).
+        done = (dist[:, -1] > bound[todo]) | (k >= m)
+        rows = todo[done]
+        if rows.size:
+            c = cand[done]
+            kk = c.shape[1]
+            tri = index.vertices[index.faces[c.ravel()]]
+            pp = np.repeat(P[rows], kk, axis=0)
+            q, bary = closest_on_triangles(pp, tri[:, 0], tri[:, 1], tri[:, 2])
+            d = np.linalg.norm(q - pp, axis=1).reshape(len(rows), kk)
+            best = np.argmin(d, axis=1)
+            flat = np.arange(len(rows)) * kk + best
+            result[0][rows] = q[flat]
+            result[1][rows] = d[np.arange(len(rows)), best]
+            result[2][rows] = c[np.arange(len(rows)), best]
+            result[3][rows] = bary[flat]
+        todo = todo[~done]
+        k = min(2 * k, m)
+    return result

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from cam.closest import closest_points
+from cam.closest import MeshIndex, closest_points, mesh_index
 from cam.quadcheck import inspect_quad_mesh, repair_quad_mesh
 from cam.quadmesh import face_areas, face_normals
 
@@ -161,22 +161,22 @@ def run_quadriflow(
         raise QuadriflowFailed(f"unreadable output from the QuadriFlow process ({exc})") from exc
 
 
-def _hausdorff(verts: np.ndarray, quads: np.ndarray, in_verts: np.ndarray, in_tris: np.ndarray) -> tuple[float, float]:
+def _hausdorff(verts: np.ndarray, quads: np.ndarray, index: MeshIndex) -> tuple[float, float]:
     """Two-sided Hausdorff and mean distance (mm) between a quad mesh and a triangle mesh, on dense samples."""
     p = verts[quads]
     samples = np.vstack([verts, p.mean(axis=1), 0.5 * (p + np.roll(p, -1, axis=1)).reshape(-1, 3)])
-    _, d_fwd, _ = closest_points(samples, in_verts, in_tris)
+    d_fwd = closest_points(index, samples)[1]
     tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    in_verts, in_tris = index.vertices, index.faces
     back = np.vstack([in_verts[np.unique(in_tris)], in_verts[in_tris].mean(axis=1)])
-    _, d_back, _ = closest_points(back, verts, tris)
+    d_back = closest_points(mesh_index(verts, tris), back)[1]
     return float(max(d_fwd.max(), d_back.max())), float(0.5 * (d_fwd.mean() + d_back.mean()))
 
 
-def _orient_like(verts: np.ndarray, quads: np.ndarray, in_verts: np.ndarray, in_tris: np.ndarray) -> tuple[np.ndarray, bool]:
+def _orient_like(verts: np.ndarray, quads: np.ndarray, index: MeshIndex) -> tuple[np.ndarray, bool]:
     """Flip all quads when their normals disagree with the input's at the closest points (area-weighted)."""
-    centres = verts[quads].mean(axis=1)
-    _, _, tri = closest_points(centres, in_verts, in_tris)
-    c = in_verts[in_tris[tri]]
+    tri = closest_points(index, verts[quads].mean(axis=1))[2]
+    c = index.vertices[index.faces[tri]]
     tn = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-300)
     agreement = float((np.einsum("ij,ij->i", face_normals(verts, quads), tn) * face_areas(verts, quads)).sum())
@@ -195,14 +195,15 @@ def _accept(raw_v: np.ndarray, raw_f: np.ndarray, in_verts: np.ndarray, in_tris:
         raise ValueError("QuadriFlow returned non-finite coordinates")
     verts, quads, repairs = repair_quad_mesh(raw_v, raw_f, expected_boundary_loops=loops,
                                              split_unpaired=split_unpaired)
-    quads, flipped = _orient_like(verts, quads, in_verts, in_tris)
+    index = mesh_index(in_verts, in_tris)
+    quads, flipped = _orient_like(verts, quads, index)
     if flipped:
         repairs.append("reversed the faces to match the input's orientation")
-    verts, dist, _ = closest_points(verts, in_verts, in_tris)
+    verts, dist = closest_points(index, verts)[:2]
     check = inspect_quad_mesh(verts, quads, expected_boundary_loops=loops)
     if check.problems:
         raise ValueError("; ".join(check.problems))
-    hausdorff, mean = _hausdorff(verts, quads, in_verts, in_tris)
+    hausdorff, mean = _hausdorff(verts, quads, index)
     if hausdorff > max_hausdorff_ratio * diag:
         raise ValueError(f"the quad mesh is {hausdorff:.3g} mm from the input at worst "
                          f"({hausdorff / diag:.1%} of the part's diagonal, limit {max_hausdorff_ratio:.1%}); "

@@ -56,6 +56,15 @@ class StageContext:
         """Where to write artifact `name` (the runner stores it after the stage returns)."""
         return self.out_dir / name
 
+    def read(self, name: str, reader: Callable[[Path], Any]) -> Any:
+        """Input artifact `name` as `reader` returns it; a file it cannot read fails the stage, naming the file."""
+        from cam.io.errors import ReadError  # here, not at the top: the API imports this module, not cam
+
+        try:
+            return reader(self.inputs[name])
+        except ReadError as exc:
+            raise StageError(f"could not read {name}: {exc}") from exc
+
 
 def write_json(path: Path, obj: Any) -> Path:
     """Write JSON to a temporary name beside `path` and rename it into place."""

@@ -173,27 +173,16 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
             try:
                 outputs = _implementation(spec)(ctx)
             except StageSkipped as exc:
-                passed = _store_outputs(store, spec, exc.outputs)
-                with Session.begin() as session:
-                    ok = jobs.finish_stage(session, job_id, claim.token, status="skipped",
-                                           message=str(exc) or None)
-                    if ok:
-                        _add_artifacts(session, job_id, stage_name, passed)
-                if not ok:
-                    _drop_unreferenced(Session, store, [o["sha256"] for o in passed.values()])
+                ok = _finish_keeping(Session, store, spec, job_id, claim.token, exc.outputs,
+                                     status="skipped", message=str(exc) or None)
                 return Outcome.CONTINUE if ok else Outcome.STOP
             except StageCanceled:
                 finish(status="canceled", message="canceled by the user")
                 return Outcome.STOP
             except (StageError, ValueError) as exc:
-                partial = _store_outputs(store, spec, getattr(exc, "outputs", {}))
-                with Session.begin() as session:
-                    ok = jobs.finish_stage(session, job_id, claim.token, status="failed", error=_problem(
-                        "stage-failed", f"Stage {stage_name} failed", str(exc), stage_name))
-                    if ok:
-                        _add_artifacts(session, job_id, stage_name, partial)
-                if not ok:
-                    _drop_unreferenced(Session, store, [o["sha256"] for o in partial.values()])
+                _finish_keeping(Session, store, spec, job_id, claim.token, getattr(exc, "outputs", {}),
+                                status="failed", error=_problem("stage-failed", f"Stage {stage_name} failed",
+                                                                str(exc), stage_name))
                 return Outcome.STOP
             except Exception as exc:  # noqa: BLE001 — anything else is our bug; the user gets a reference
                 ref = uuid.uuid4().hex[:12]
@@ -223,6 +212,20 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
         return Outcome.CONTINUE if ok else Outcome.STOP
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _finish_keeping(Session, store: ArtifactStore, spec: StageSpec, job_id: str, token: str,
+                    outputs: dict[str, Path], **finish: Any) -> bool:
+    """End a stage that did not succeed (skipped, failed) and keep what it left: a passed-on input, or files
+    for inspection. False when the lease was lost; then the files go again unless another job uses them."""
+    kept = _store_outputs(store, spec, outputs)
+    with Session.begin() as session:
+        ok = jobs.finish_stage(session, job_id, token, **finish)
+        if ok:
+            _add_artifacts(session, job_id, spec.name, kept)
+    if not ok:
+        _drop_unreferenced(Session, store, [o["sha256"] for o in kept.values()])
+    return ok
 
 
 def _store_outputs(store: ArtifactStore, spec: StageSpec, outputs: dict[str, Path]) -> dict[str, dict[str, Any]]:

@@ -2,12 +2,11 @@
 
 Entry point: `cam.fit.patches.fit_patches` (quad-grid patches + triangle mesh -> surfaces and
 errors). Modules, one concept each: `basis` (basis functions, design and bending matrices),
-`knots` (exact knot insertion, splitting, joining), `closest` (exact closest points on a
-mesh), `grid` (a patch's quads as a vertex grid), `param` (samples, seed parameters, foot
-points, anchors), `solve` (the squared-distance iteration), `boundary` (shared segments and
+`knots` (exact knot insertion, splitting, joining), `grid` (a patch's quads as a vertex
+grid), `param` (samples, seed parameters, foot points, anchors), `solve` (the squared-distance iteration), `boundary` (shared segments and
 the curves carrying them), `curve` (fitting one boundary curve), `crease` (moving sharp
 borders onto the mesh's creases), `refine` (knot insertion where the error stays high),
-`patches` (the whole fit).
+`patches` (the whole fit). Distances to the mesh come from `cam.closest`.
 """
 
 from cam.fit.grid import orient_grid, patch_grid

@@ -123,7 +123,7 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
     sharp edges meet at an angle (or three or more meet) may go to a crease corner instead.
     Every other vertex goes to its closest mesh point.
     """
-    from cam.fit.closest import closest_points
+    from cam.closest import closest_points
 
     V = np.asarray(vertices, dtype=np.float64)
     used = np.unique(np.concatenate([np.asarray(g).ravel() for g in grids]))

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cam.fit.basis import evaluate_surface, span_params
-from cam.fit.closest import closest_points, mesh_index
+from cam.closest import closest_points, mesh_index
 
 __all__ = ["mesh_samples", "Assignment", "assign_samples", "project_points", "FootFrame", "foot_frames",
            "distance_to_surface", "Anchors", "grid_anchors"]

@@ -23,7 +23,7 @@ import numpy as np
 from cam.bspline import BSplineSurface, make_bspline_surface
 from cam.fit.basis import evaluate_surface, span_params
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
-from cam.fit.closest import closest_points, mesh_index
+from cam.closest import closest_points, mesh_index
 from cam.fit.crease import edge_keys, mesh_creases, snap_points, vertex_positions
 from cam.fit.curve import CurveFit, fit_curve, lattice_knots
 from cam.fit.knots import join_curves, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve

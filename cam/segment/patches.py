@@ -52,8 +52,10 @@ class PatchGrid:
         return not self.problems
 
     def sides(self) -> list[list[int]]:
-        """The four boundary polylines as vertex ids, corner to corner, counter-clockwise."""
+        """The four boundary polylines as vertex ids, corner to corner, counter-clockwise ([] when invalid)."""
         g = self.grid
+        if g.size == 0:
+            return []
         return [g[0, :].tolist(), g[:, -1].tolist(), g[-1, ::-1].tolist(), g[::-1, 0].tolist()]
 
 

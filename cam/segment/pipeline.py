@@ -30,7 +30,7 @@ from cam.segment.base import SetupBase, find_setup_base
 from cam.segment.clip import CutState, complete_cuts, cut_open_cylinders, patch_labels
 from cam.segment.graph import build_connection_graph
 from cam.segment.motorcycle import motorcycle_cuts
-from cam.segment.patches import grid_of_patch
+from cam.segment.patches import PatchGrid, grid_of_patch
 from cam.segment.sharp import find_sharp_edges
 from cam.segment.traces import straight_continuation
 
@@ -39,51 +39,23 @@ __all__ = ["METHODS", "Patch", "Segmentation", "segment_quads"]
 METHODS = ("mst", "greedy", "motorcycle")
 
 
-@dataclass(frozen=True, eq=False)
-class Patch:
-    """One patch, in the indices of the input quad mesh.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Patch(PatchGrid):
+    """One patch: its grid (`PatchGrid`'s fields, in the input quad mesh's face and vertex ids) and its place.
 
     Attributes
     ----------
     id
         Patch number (0-based, by lowest face index).
-    faces
-        int64 (k,): quad face indices.
-    rows, cols
-        Grid size in quads (0 for an invalid patch).
-    corners
-        Four vertex indices, counter-clockwise from ``grid[0, 0]`` (empty when invalid).
-    grid
-        int64 (rows + 1, cols + 1) vertex indices; ``face_grid`` int64 (rows, cols) face indices.
     sharp_sides
         Per side (bottom, right, top, left of the grid): all its edges are sharp.
     neighbors
         Ids of patches sharing a boundary edge.
-    problems
-        Empty for a valid sharp height field, else the condition that failed.
     """
 
     id: int
-    faces: np.ndarray
-    rows: int
-    cols: int
-    corners: tuple[int, ...]
-    grid: np.ndarray
-    face_grid: np.ndarray
     sharp_sides: tuple[bool, ...]
     neighbors: tuple[int, ...]
-    problems: tuple[str, ...] = ()
-
-    @property
-    def valid(self) -> bool:
-        return not self.problems
-
-    def sides(self) -> list[list[int]]:
-        """The four boundary polylines (vertex indices), corner to corner."""
-        g = self.grid
-        if g.size == 0:
-            return []
-        return [g[0, :].tolist(), g[:, -1].tolist(), g[-1, ::-1].tolist(), g[::-1, 0].tolist()]
 
 
 @dataclass(frozen=True, eq=False)
@@ -287,14 +259,12 @@ def segment_quads(
     patches = []
     for p, g in enumerate(grids):
         sharp_sides: tuple[bool, ...] = ()
-        grid = g.grid
         if g.valid:
-            sides = [grid[0, :], grid[:, -1], grid[-1, ::-1], grid[::-1, 0]]
             sharp_sides = tuple(
-                all(int(min(a, b)) * n + int(max(a, b)) in sharp_keys for a, b in itertools.pairwise(s)) for s in sides
+                all(min(a, b) * n + max(a, b) in sharp_keys for a, b in itertools.pairwise(s)) for s in g.sides()
             )
         patches.append(Patch(
-            id=p, faces=domain[g.faces], rows=g.rows, cols=g.cols, corners=g.corners, grid=grid,
+            id=p, faces=domain[g.faces], rows=g.rows, cols=g.cols, corners=g.corners, grid=g.grid,
             face_grid=domain[g.face_grid] if g.valid else g.face_grid, sharp_sides=sharp_sides,
             neighbors=tuple(sorted(neighbors[p])), problems=g.problems,
         ))

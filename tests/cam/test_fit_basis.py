@@ -7,7 +7,7 @@ import pytest
 
 from cam.bspline import clamped_uniform_knots, make_bspline_surface
 from cam.fit.basis import evaluate_curve, evaluate_surface, gram_matrix, surface_matrix, thin_plate_matrix
-from cam.fit.closest import closest_on_triangles, closest_points, mesh_index
+from cam.closest import closest_on_triangles, closest_points, mesh_index
 from cam.fit.knots import (insert_knot, join_curves, merge_knots, refine_knots, refine_surface, reverse_curve,
                            split_curve, sub_curve)
 from cam.fit.refine import split_spans

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.closest import closest_points, point_triangle_closest
+from cam.closest import closest_on_triangles, closest_points, mesh_index
 from cam.io import ReadError, WriteError
 from cam.quadcheck import boundary_loops, inspect_quad_mesh, repair_quad_mesh
-from cam.quadio import read_quad_obj, write_ply_quads_colored, write_quad_obj
+from cam.io.quads import read_quad_obj, write_ply_quads_colored, write_quad_obj
 from cam.quadmesh import face_areas, face_normals, quad_topology, vertex_fans
 from cam.quadshapes import quad_box, quad_grid, quad_torus
 
@@ -158,10 +158,10 @@ def test_closest_points_match_brute_force():
     rng = np.random.default_rng(3)
     mesh = trimesh.creation.icosphere(2, radius=5.0)
     pts = rng.normal(size=(300, 3)) * 6
-    _, dist, _tri = closest_points(pts, mesh.vertices, mesh.faces)
+    _, dist, _tri, _bary = closest_points(mesh_index(mesh.vertices, mesh.faces), pts)
     corners = mesh.vertices[mesh.faces]
     for i in range(0, 300, 7):
-        q = point_triangle_closest(np.repeat(pts[i:i + 1], len(corners), 0), corners[:, 0], corners[:, 1], corners[:, 2])
+        q, _ = closest_on_triangles(np.repeat(pts[i:i + 1], len(corners), 0), corners[:, 0], corners[:, 1], corners[:, 2])
         assert dist[i] == pytest.approx(np.linalg.norm(q - pts[i], axis=1).min(), abs=1e-9)
 
 
@@ -169,7 +169,7 @@ def test_closest_point_on_a_degenerate_triangle():
     a = np.array([[0.0, 0, 0]])
     b = np.array([[0.0, 0, 0]])
     c = np.array([[2.0, 0, 0]])
-    q = point_triangle_closest(np.array([[1.0, 1.0, 0]]), a, b, c)
+    q, _ = closest_on_triangles(np.array([[1.0, 1.0, 0]]), a, b, c)
     assert np.allclose(q, [[1.0, 0, 0]])
 
 

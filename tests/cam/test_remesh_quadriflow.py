@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from cam.quadcheck import inspect_quad_mesh
-from cam.quadio import read_quad_obj
+from cam.io.quads import read_quad_obj
 from cam.quadmesh import face_areas, face_normals
 from tests.conftest import SHARED_DATA
 

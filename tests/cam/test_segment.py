@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from cam.quadio import read_quad_obj, write_quad_obj
+from cam.io.quads import read_quad_obj, write_quad_obj
 from cam.quadmesh import face_normals, quad_topology
 from cam.quadshapes import quad_box, quad_capped_cylinder, quad_grid, quad_torus
 from cam.segment import segment_quads

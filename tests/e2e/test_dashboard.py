@@ -13,10 +13,8 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import math
 import os
 import re
-import shutil
 import signal
 import socket
 import struct

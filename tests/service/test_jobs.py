@@ -8,7 +8,7 @@ import pytest
 
 from service import jobs
 from service.db import Job, get_sessionmaker
-from service.pipeline import STAGES, cache_key
+from service.pipeline import DESIGN_ORDER, STAGES, cache_key, load_stages
 
 
 @pytest.fixture
@@ -111,3 +111,10 @@ def test_a_lapsed_stage_of_a_canceled_job_is_canceled_not_requeued(Session):
         assert jobs.reconcile(s, max_attempts=3) == []
     with Session() as s:
         assert [st.status for st in s.get(Job, job_id).stages] == ["canceled"]
+
+
+def test_pipeline_subset_keeps_design_order_and_refuses_unknown_stages():
+    assert [s.name for s in load_stages()] == list(DESIGN_ORDER)
+    assert [s.name for s in load_stages(only="fit, ingest,denoise")] == ["ingest", "denoise", "fit"]
+    with pytest.raises(ValueError, match=r"unknown stages \['fitt'\]"):
+        load_stages(only="ingest,fitt")

@@ -6,7 +6,7 @@ import shutil
 from pathlib import Path
 
 from cam.denoise import DenoiseCanceled, denoise_mesh
-from cam.io import ReadError, read_ply, write_ply_mesh
+from cam.io import read_ply, write_ply_mesh
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped, write_json
 
 # JobParams.denoise fields passed to the core under the same names.
@@ -25,10 +25,7 @@ def run_denoise(ctx: StageContext) -> dict[str, Path]:
         raise StageSkipped("denoise.enabled is false: mesh_raw.ply is passed on as mesh.ply",
                            outputs={"mesh.ply": passed})
     ctx.progress(0.0, "reading mesh_raw.ply")
-    try:
-        mesh = read_ply(ctx.inputs["mesh_raw.ply"])
-    except ReadError as exc:
-        raise StageError(f"could not read mesh_raw.ply: {exc}") from exc
+    mesh = ctx.read("mesh_raw.ply", read_ply)
     if mesh.faces is None or not len(mesh.faces):
         raise StageError("mesh_raw.ply has no faces; denoise needs a triangle mesh")
 

@@ -9,23 +9,17 @@ import numpy as np
 
 from cam.fit.grid import orient_grid, patch_grid
 from cam.fit.patches import FitResult, fit_patches
-from cam.io import ReadError, read_ply
+from cam.io import read_ply
 from cam.io.iges import write_iges
-from cam.quadio import read_quad_obj
+from cam.io.quads import read_quad_obj
 from worker.context import StageContext, StageError, write_json
 
 def run_fit(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params["fit"]
     ctx.progress(0.02, "reading the quad mesh, patches and mesh")
-    try:
-        vertices, quads = read_quad_obj(ctx.inputs["quads.obj"])
-    except ReadError as exc:
-        raise StageError(f"could not read quads.obj: {exc}") from exc
+    vertices, quads = ctx.read("quads.obj", read_quad_obj)
     patches, sharp_edges = _read_patches(ctx.inputs["patches.json"])
-    try:
-        mesh = read_ply(ctx.inputs["mesh.ply"])
-    except ReadError as exc:
-        raise StageError(f"could not read mesh.ply: {exc}") from exc
+    mesh = ctx.read("mesh.ply", read_ply)
     if mesh.faces is None or not len(mesh.faces):
         raise StageError("mesh.ply has no triangles to fit the surfaces to")
     grids, ids, skipped = [], [], []

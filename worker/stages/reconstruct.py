@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cam.io import ReadError, read_ply, write_ply_mesh
+from cam.io import read_ply, write_ply_mesh
 from cam.reconstruct import ReconstructionCanceled, reconstruct_surface
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 
@@ -19,10 +19,7 @@ def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params.get("reconstruct", {})
     options = {k: params[k] for k in _CORE_OPTIONS if k in params}
     ctx.progress(0.0, "reading the cloud")
-    try:
-        cloud = read_ply(ctx.inputs["cloud.ply"])
-    except ReadError as exc:
-        raise StageError(f"could not read cloud.ply: {exc}") from exc
+    cloud = ctx.read("cloud.ply", read_ply)
     if cloud.faces is not None:
         raise StageError("cloud.ply holds a mesh, not a point cloud; mesh uploads skip reconstruct")
     threads = ctx.settings.get("blas_threads") or 1

@@ -4,18 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cam.io import ReadError, read_ply
-from cam.quadio import write_quad_obj
+from cam.io import read_ply
+from cam.io.quads import write_quad_obj
 from cam.remesh import remesh_quads
 from worker.context import StageContext, StageError, write_json
 
 def run_remesh(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params["remesh"]
     ctx.progress(0.02, "reading the mesh")
-    try:
-        mesh = read_ply(ctx.inputs["mesh.ply"])
-    except ReadError as exc:
-        raise StageError(f"could not read mesh.ply: {exc}") from exc
+    mesh = ctx.read("mesh.ply", read_ply)
     if mesh.faces is None or len(mesh.faces) == 0:
         raise StageError("mesh.ply has no faces; the remesh stage needs a triangle mesh")
     try:

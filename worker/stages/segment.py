@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cam.io import ReadError
-from cam.quadio import read_quad_obj, write_ply_quads_colored
+from cam.io.quads import read_quad_obj, write_ply_quads_colored
 from cam.quadmesh import face_normals
 from cam.segment import Segmentation, segment_quads
 from worker.context import StageContext, StageError, write_json
@@ -90,10 +89,7 @@ def _failure_message(seg: Segmentation) -> str:
 def run_segment(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params["segment"]
     ctx.progress(0.02, "reading quads.obj")
-    try:
-        vertices, faces = read_quad_obj(ctx.inputs["quads.obj"])
-    except ReadError as exc:
-        raise StageError(f"could not read quads.obj: {exc}") from exc
+    vertices, faces = ctx.read("quads.obj", read_quad_obj)
     try:
         seg = segment_quads(
             vertices, faces, sharp_angle_deg=float(params["sharp_angle_deg"]), remove_base=bool(params["remove_base"]),

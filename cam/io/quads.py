@@ -15,6 +15,7 @@ import numpy as np
 
 from cam.io.atomic import atomic_write
 from cam.io.errors import ReadError, WriteError
+from cam.io.ply import _header, _property_lines  # the same binary PLY layout as the triangle writer
 
 __all__ = ["read_quad_obj", "write_ply_quads_colored", "write_quad_obj"]
 
@@ -155,8 +156,6 @@ def write_ply_quads_colored(
     face["red"], face["green"], face["blue"] = rgb.astype(np.uint8).T
     if labels is not None:
         face["patch"] = lab
-    header = ["ply", "format binary_little_endian 1.0"]
-    header += [f"comment {c}" for c in comments]
-    header += [f"element vertex {len(verts)}", "property double x", "property double y", "property double z"]
-    header += [f"element face {len(quads)}", *props, "end_header"]
-    return atomic_write(path, [("\n".join(header) + "\n").encode("ascii"), vertex.tobytes(), face.tobytes()])
+    header = _header(comments, [("vertex", len(verts), _property_lines([("x", "<f8"), ("y", "<f8"), ("z", "<f8")])),
+                                ("face", len(quads), props)])
+    return atomic_write(path, [header, vertex.tobytes(), face.tobytes()])
