@@ -86,9 +86,13 @@ class SegmentParams(_Group):
 
 
 class FitParams(_Group):
-    tolerance_mm: float = Field(0.032, gt=0, le=10, description="Max deviation of a fitted surface from the mesh.")
+    tolerance_mm: float | None = Field(None, gt=0, le=10, description="Max deviation of a fitted surface from the "
+                                       "mesh. None: a fifth of toolpath.scallop_height_mm (0.032 mm at 0.16 mm).")
     knot_spacing_quads: float = Field(2.0, ge=0.5, le=64, description="Initial knot spacing, in quads.")
     samples_per_face: Literal[0, 1, 3, 6, 10] = Field(1, description="Mesh samples per triangle beside its vertices.")
+    max_samples_per_quad: float | None = Field(32.0, gt=0, le=10_000, description="Mesh samples the fit uses per "
+                                               "patch quad at most (an even subset; errors are measured on all). "
+                                               "None: all.")
     max_refinements: int = Field(3, ge=0, le=6, description="Knot insertions where a patch is over tolerance.")
     iterations: int = Field(8, ge=1, le=50, description="Parameter-correction rounds of the least-squares fit.")
     smoothing_mm2: float = Field(1e-4, ge=0, le=1, description="Thin-plate smoothing weight.")

@@ -85,10 +85,10 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="fit",
-        version="1",
+        version="2",
         inputs=("quads.obj", "patches.json", "mesh.ply"),
         outputs=("surfaces.json", "surfaces.igs"),
-        param_groups=("fit",),
+        param_groups=("fit", "toolpath"),  # the default tolerance is a fifth of the scallop height
         run="worker.stages.fit:run_fit",
         time_limit_s=1800.0,
     ),

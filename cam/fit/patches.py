@@ -76,10 +76,11 @@ class FitResult:
 def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
                 *, tolerance_mm: float = 0.032, other_quads: np.ndarray | None = None,
                 sharp_edges: np.ndarray | None = None, crease_angle_deg: float = 40.0, snap_radius: float = 1.0,
-                knot_spacing: float = 2.0, samples_per_face: int = 1, smoothing_mm2: float = 1e-4,
+                knot_spacing: float = 2.0, samples_per_face: int = 1, max_samples_per_quad: float | None = 32.0,
+                smoothing_mm2: float = 1e-4,
                 smoothing_floor: float = 1e-6, param_weight: float = 0.01, normal_weight_mm: float = 0.02,
                 anchor_weight: float = 1.0, iterations: int = 8, max_refinements: int = 3,
-                on_progress: Callable[[float, str], None] | None = None) -> FitResult:
+                min_span: float = 0.125, on_progress: Callable[[float, str], None] | None = None) -> FitResult:
     """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
 
     vertices float64 (k, 3) mm: quad-mesh vertices; grids: per patch int (R + 1, C + 1) vertex ids
@@ -89,12 +90,17 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     along them are moved onto the mesh's creases (edges sharper than `crease_angle_deg`) found
     within `snap_radius` quad edges. knot_spacing: quads per knot span to start with;
     samples_per_face: mesh points taken inside each triangle besides its corners (0, 1, 3, 6 or
-    10). on_progress (fraction, message) is called between patches (it may raise to stop the fit).
+    10). max_samples_per_quad: the fit uses at most this many samples per patch quad on average
+    (an evenly strided subset; a fine reconstructed mesh has ~100), None: all of them; the
+    reported errors are measured on every sample either way. on_progress (fraction, message) is
+    called between patches (it may raise to stop the fit).
     """
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance_mm must be positive, got {tolerance_mm}")
     if not knot_spacing > 0:
         raise ValueError(f"knot_spacing must be positive, got {knot_spacing}")
+    if max_samples_per_quad is not None and not max_samples_per_quad > 0:
+        raise ValueError(f"max_samples_per_quad must be positive or None, got {max_samples_per_quad}")
     V = np.asarray(vertices, dtype=np.float64)
     if V.ndim != 2 or V.shape[1] != 3:
         raise ValueError(f"vertices must have shape (k, 3), got {V.shape}")
@@ -109,9 +115,11 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                 normal_weight_mm=normal_weight_mm, anchor_weight=anchor_weight, iterations=iterations)
     layout = boundary_layout(grids)
     index = mesh_index(mesh_vertices, mesh_faces)
-    P, N = mesh_samples(mesh_vertices, mesh_faces, per_face=samples_per_face)
-    asg = assign_samples(P, V, grids, other_quads=other_quads)
-    owner, su, sv = asg.patch.copy(), asg.u.copy(), asg.v.copy()
+    P_all, N_all = mesh_samples(mesh_vertices, mesh_faces, per_face=samples_per_face)
+    asg_all = assign_samples(P_all, V, grids, other_quads=other_quads)
+    use = _thin(asg_all.patch, grids, max_samples_per_quad)
+    P, N = P_all[use], N_all[use]
+    owner, su, sv = asg_all.patch[use], asg_all.u[use], asg_all.v[use]
     sharp = edge_keys(sharp_edges)
     creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg) if sharp else None
     positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases, snap_radius=snap_radius)
@@ -137,7 +145,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         pts, nrm, u, v = data(k)
         pull = tuple(not sharp_side[(k, name)] for name in SIDES)
         return fit_refined(pts, nrm, u, v, tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                           max_refinements=max_refinements, pull_sides=pull, **kw, **opts)[0]
+                           max_refinements=max_refinements, min_span=min_span, pull_sides=pull, **kw, **opts)[0]
 
     free: list[SurfaceFit] = []
     for k in range(n):
@@ -148,7 +156,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         free[k] = free_fit(k, free[k])
     report(0.4, "fitting the shared boundary curves")
     curves, curve_err = _fit_curves(layout, grids, shape, free, positions, index, creases, sharp, knot_spacing,
-                                    tolerance_mm, max_refinements)
+                                    tolerance_mm, max_refinements, min_span)
     final: list[SurfaceFit] = []
     rounds: list[int] = []
     for k in range(n):
@@ -156,17 +164,18 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         pts, nrm, u, v = data(k)
         fit, r = fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
                              tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                             max_refinements=max_refinements, **opts)
+                             max_refinements=max_refinements, min_span=min_span, **opts)
         final.append(fit)
         rounds.append(r)
         report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
-    errors = _sample_errors(P, owner, final, layout, tolerance_mm)
+    report(0.92, "measuring every mesh sample against the surfaces")
+    errors = _sample_errors(P_all, asg_all.patch, final, layout, tolerance_mm)
     out = []
     for k in range(n):
         R, C = shape[k]
         fit = final[k]
         surf = make_bspline_surface(fit.control_points, fit.knots_u / R, fit.knots_v / C)
-        e = errors[owner == k]
+        e = errors[asg_all.patch == k]
         s2m = _surface_to_mesh(index, fit)
         berr = max((curve_err[p.curve] for name in SIDES for p in layout.sides[(k, name)]), default=0.0)
         worst = max(float(e.max(initial=0.0)), s2m)
@@ -216,7 +225,7 @@ def _reassign(P, owner, su, sv, fits, layout: Layout, tol: float) -> set[int]:
 
 
 def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, sharp, spacing: float, tol: float,
-                max_refinements: int) -> tuple[list[CurveFit], list[float]]:
+                max_refinements: int, min_span: float) -> tuple[list[CurveFit], list[float]]:
     """Fit each boundary curve once, through its junction points.
 
     Along a crease the data are the crease itself (points between the curve's vertices moved
@@ -246,7 +255,7 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
             h = np.concatenate([s[1] for s in samples[c]])
         cons = [(float(spec.start + i), pts[i]) for i, vid in enumerate(spec.vertices) if vid in ends]
         fit = fit_curve(q, h, knots=lattice_knots(spec.start, spec.end, spacing), constraints=cons,
-                        length_mm=length, tolerance_mm=0.5 * tol, max_refinements=max_refinements,
+                        length_mm=length, tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
                         deviation=lambda p: closest_points(index, p)[1],
                         project=lambda p: closest_points(index, p)[0])
         fits.append(fit)
@@ -304,13 +313,21 @@ def _constrained_start(k: int, layout: Layout, free: SurfaceFit, curves):
     return ku, kv, cp
 
 
+
 def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
-    """Distance of every assigned sample to the fitted surfaces (own, or a neighbour where closer)."""
+    """Distance of every assigned sample to the fitted surfaces (own, or a neighbour where closer).
+
+    Measured afresh on all samples, not taken from the fit, which may have used a subset.
+    """
     err = np.full(len(P), np.nan)
     for k, fit in enumerate(fits):
         idx = np.flatnonzero(owner == k)
-        d = fit.distance[: idx.size].copy()
-        far = fit.clamped[: idx.size] & (d > tol)
+        if not idx.size:
+            continue
+        u, v, d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx])
+        ku, kv = fit.knots_u, fit.knots_v
+        on_border = (u <= ku[3]) | (u >= ku[-4]) | (v <= kv[3]) | (v >= kv[-4])
+        far = on_border & (d > tol)
         for nb in layout.neighbours[k]:
             if not far.any():
                 break
@@ -319,6 +336,24 @@ def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
             d[far] = np.minimum(d[far], dn)
         err[idx] = d
     return err
+
+
+def _thin(owner: np.ndarray, grids: list[np.ndarray], per_quad: float | None) -> np.ndarray:
+    """bool mask of the samples the fit uses: per patch at most `per_quad` x its quads, evenly strided.
+
+    Mesh samples come in mesh order, which is spatially coherent, so a stride spreads them over the patch.
+    """
+    use = np.ones(len(owner), dtype=bool)
+    if per_quad is None:
+        return use
+    for k, g in enumerate(grids):
+        idx = np.flatnonzero(owner == k)
+        budget = max(int(per_quad * (g.shape[0] - 1) * (g.shape[1] - 1)), 16)
+        if idx.size > budget:
+            keep = np.zeros(idx.size, dtype=bool)
+            keep[np.round(np.linspace(0, idx.size - 1, budget)).astype(np.int64)] = True
+            use[idx[~keep]] = False
+    return use
 
 
 def _surface_to_mesh(index, fit: SurfaceFit, density: int = 4) -> float:

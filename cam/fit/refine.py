@@ -51,13 +51,15 @@ def border_mask(shape: tuple[int, int]) -> np.ndarray:
 
 def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
                 knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
-                tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, **options
+                tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, min_gain: float = 0.1,
+                **options
                 ) -> tuple[SurfaceFit, int]:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
     fix_border keeps the outer ring of control points (knot insertion moves no boundary curve,
     so the border stays the shared curves through every round); samples beyond a fixed border
-    are ignored (they belong to the neighbour). Returns the best fit and the rounds used.
+    are ignored (they belong to the neighbour). A round that lowers the largest error by less
+    than the fraction `min_gain` ends the refinement. Returns the best fit and the rounds used.
     """
     mode = "drop" if fix_border else "pull"
     cp = None if control_points is None else np.asarray(control_points, dtype=np.float64)
@@ -72,11 +74,14 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             break
         ku, kv, cp = refine_surface(fit.knots_u, fit.knots_v, fit.control_points, target_u=tu, target_v=tv)
         rounds += 1
+        fit_before = fit.max_error
         refit = fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
                             fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
                             clamped_samples=mode, warm=True, **options)
-        if refit.max_error >= fit.max_error:
-            fit = refit if refit.max_error == fit.max_error else fit
+        improved = refit.max_error < fit.max_error
+        fit = refit if improved else fit
+        # Each round can multiply the control points by four; a round that gains little means
+        # the remaining error is not a lack of freedom (a border held by its curve, noise).
+        if refit.max_error > (1.0 - min_gain) * fit_before:
             break
-        fit = refit
     return fit, rounds

@@ -57,6 +57,7 @@ def test_stage_writes_surfaces_json_and_iges(tmp_path):
     first = doc["surfaces"][0]
     assert first["degree"] == [3, 3] and first["neighbours"] == [20] and first["within_tolerance"]
     assert first["max_error_mm"] <= 0.032 and first["knots_u"][0] == 0.0 and first["knots_u"][-1] == 1.0
+    assert doc["tolerance_mm"] == pytest.approx(0.16 / 5)  # unset: a fifth of the default scallop height
     s = surface_from_json(first)
     assert s.control_points.shape[2] == 3
     assert out["surfaces.igs"].read_bytes().count(b"     128") == 4  # two entities, two DE lines each
@@ -81,6 +82,13 @@ def test_invalid_patches_are_skipped_and_reported(tmp_path):
     doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
     assert [s["patch"] for s in doc["surfaces"]] == [10]
     assert doc["skipped"] == [{"patch": 20, "reason": "x"}]
+
+
+def test_the_default_tolerance_follows_the_scallop_height(tmp_path):
+    ctx, *_ = _job(tmp_path, cylinder(25.0), blocks=[(0, 14)])
+    ctx.params["toolpath"]["scallop_height_mm"] = 0.05
+    doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
+    assert doc["tolerance_mm"] == pytest.approx(0.01)
 
 
 def test_failures_say_what_to_change(tmp_path):

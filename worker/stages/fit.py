@@ -16,6 +16,7 @@ from worker.context import StageContext, StageError, write_json
 
 def run_fit(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params["fit"]
+    tolerance_mm = fit_tolerance_mm(ctx.params)
     ctx.progress(0.02, "reading the quad mesh, patches and mesh")
     vertices, quads = ctx.read("quads.obj", read_quad_obj)
     patches, sharp_edges = _read_patches(ctx.inputs["patches.json"])
@@ -50,12 +51,13 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
         ctx.progress(0.05 + 0.85 * fraction, message)
 
     try:
-        result = fit_patches(vertices, grids, mesh.points, mesh.faces, tolerance_mm=float(params["tolerance_mm"]),
+        result = fit_patches(vertices, grids, mesh.points, mesh.faces, tolerance_mm=tolerance_mm,
                              other_quads=quads[~in_patch], sharp_edges=sharp_edges,
                              crease_angle_deg=float(params["crease_angle_deg"]),
                              snap_radius=float(params["snap_radius_quads"]),
                              knot_spacing=float(params["knot_spacing_quads"]),
                              samples_per_face=int(params["samples_per_face"]),
+                             max_samples_per_quad=params["max_samples_per_quad"],
                              smoothing_mm2=float(params["smoothing_mm2"]),
                              normal_weight_mm=float(params["normal_weight_mm"]), iterations=int(params["iterations"]),
                              max_refinements=int(params["max_refinements"]), on_progress=progress)
@@ -75,6 +77,12 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
                          "fit.require_tolerance to false to accept them", outputs=out)
     ctx.progress(1.0, None if not over else f"{len(over)} patches over tolerance: {over}")
     return out
+
+
+def fit_tolerance_mm(params: dict[str, Any]) -> float:
+    """fit.tolerance_mm, or a fifth of the scallop height when it is not set (the issue's default)."""
+    tol = params["fit"].get("tolerance_mm")
+    return float(tol) if tol is not None else float(params["toolpath"]["scallop_height_mm"]) / 5.0
 
 
 def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | None = None,

@@ -297,7 +297,9 @@ export class ViewerPanel {
       parsing();
       const geo = await parse("surfaces", buf, { res: 24 });
       if (!geo.surfaceCount) throw new Error(geo.errors[0] || "no surface could be drawn");
-      const tol = this.job.params?.fit?.tolerance_mm;
+      // fit.tolerance_mm null means a fifth of the scallop height (what the fit stage used).
+      const scallop = this.job.params?.toolpath?.scallop_height_mm;
+      const tol = this.job.params?.fit?.tolerance_mm ?? (scallop !== undefined ? scallop / 5 : undefined);
       return { object: m.surfacesLayer(geo),
         info: `${geo.surfaceCount} B-spline surfaces${geo.maxError !== null ? `, max fit error ${formatNumber(geo.maxError)} mm` : ""}`
           + `${tol !== undefined ? ` (tolerance ${tol} mm)` : ""}${geo.errors.length ? `; ${geo.errors.length} not drawn: ${geo.errors[0]}` : ""}` };
