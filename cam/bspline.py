@@ -111,3 +111,31 @@ def surface_from_json(data: dict[str, Any]) -> BSplineSurface:
     """Inverse of `BSplineSurface.to_json` (reads one entry of `surfaces.json`)."""
     return make_bspline_surface(data["control_points"], data["knots_u"], data["knots_v"],
                                 degree=tuple(data.get("degree", (3, 3))))
+
+
+def find_folds(surface: BSplineSurface, *, samples: int = 33) -> tuple[float, np.ndarray | None]:
+    """Where a surface folds over itself: the share of a samples x samples parameter grid whose
+    normal S_u x S_v points against a neighbouring sample's, and one such point.
+
+    A regular patch keeps the direction of S_u x S_v; a fold reverses it, and there normals,
+    curvature and every offset built on them are meaningless. Samples where S_u x S_v vanishes
+    (a degenerate corner) are not counted. Returns (fraction in [0, 1], float64 (3,) point or None).
+    """
+    (u0, u1), (v0, v1) = surface.domain
+    uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
+    n = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
+    length = np.linalg.norm(n, axis=-1)
+    ok = length > 1e-9 * max(float(np.median(length)), 1e-300)
+    n = n / np.where(ok, length, 1.0)[..., None]
+    folded = np.zeros(ok.shape, dtype=bool)
+    for axis in (0, 1):
+        a = [slice(None)] * 2
+        b = [slice(None)] * 2
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        flip = (np.einsum("ijk,ijk->ij", n[tuple(a)], n[tuple(b)]) < 0) & ok[tuple(a)] & ok[tuple(b)]
+        folded[tuple(a)] |= flip
+        folded[tuple(b)] |= flip
+    if not folded.any():
+        return 0.0, None
+    i = np.unravel_index(np.argmax(folded), folded.shape)
+    return float(folded.mean()), surface.evaluate(uu[i], vv[i])

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from cam.bspline import BSplineSurface, make_bspline_surface
+from cam.bspline import BSplineSurface, find_folds, make_bspline_surface
 from cam.fit.basis import evaluate_surface, span_params
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
 from cam.closest import closest_points, mesh_index
@@ -41,7 +41,9 @@ class PatchFit:
     max_error_mm / mean_error_mm: distance from the patch's mesh samples to the fitted surfaces
     (a sample beyond the border counts against the nearest neighbour), max_error_mm also
     covers surface_to_mesh_mm: the largest distance from points of the surface to the mesh;
-    boundary_error_mm: the largest distance of its boundary curves from the mesh.
+    boundary_error_mm: the largest distance of its boundary curves from the mesh;
+    folded_fraction: share of the surface that folds over itself (`cam.bspline.find_folds`; 0 for a
+    regular patch), reported because a fold can hug the mesh and still pass the distance test.
     """
 
     index: int
@@ -55,6 +57,7 @@ class PatchFit:
     within_tolerance: bool
     neighbours: tuple[int, ...]
     side_neighbours: dict[str, tuple[int, ...]]
+    folded_fraction: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +74,11 @@ class FitResult:
     def over_tolerance(self) -> list[int]:
         """Indices of the patches whose max_error_mm exceeds the tolerance."""
         return [p.index for p in self.patches if not p.within_tolerance]
+
+    @property
+    def folded(self) -> list[int]:
+        """Indices of the patches whose surface folds over itself somewhere."""
+        return [p.index for p in self.patches if p.folded_fraction > 0]
 
 
 def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
@@ -182,7 +190,8 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         out.append(PatchFit(index=k, surface=surf, max_error_mm=worst, mean_error_mm=float(e.mean()) if e.size else 0.0,
                             surface_to_mesh_mm=s2m, boundary_error_mm=berr, samples=int(e.size), refinements=rounds[k],
                             within_tolerance=worst <= tolerance_mm, neighbours=layout.neighbours[k],
-                            side_neighbours={s: layout.side_neighbours[(k, s)] for s in SIDES}))
+                            side_neighbours={s: layout.side_neighbours[(k, s)] for s in SIDES},
+                            folded_fraction=find_folds(surf)[0]))
     report(1.0, "fitted")
     return FitResult(patches=out, max_gap_mm=_max_gap(out, layout, shape), curves=len(curves),
                      tolerance_mm=tolerance_mm)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.bspline import BSplineSurface
+from cam.bspline import BSplineSurface, find_folds
 from cam.toolpath.access import Assignment, Setup, assign_setups, machine_patches
 from cam.toolpath.chord import discretize, lattices
 from cam.toolpath.geometry import Patch, frame
@@ -265,6 +265,15 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     progress(0.02, "setups and accessibility")
     unmachined = []
     for i, s, g in zip(ids, surfaces, signs):  # a hollow the ball does not fit is reported, never cut
+        fraction, at = find_folds(s)
+        if fraction > 0:
+            # A fold hugs the mesh and passes the fit's distance test, but its normals flip: ball
+            # centres, curvature and the scallop relations built on them mean nothing there.
+            unmachined.append({"patch": int(i), "reason": (
+                f"its fitted surface folds over itself ({fraction:.1%} of it, near "
+                f"{np.round(at, 3).tolist()}): no scallop bound can be certified on it; refit the patch "
+                "(fit lists it under 'folded') or change remesh.target_faces")})
+            continue
         try:
             check_concavity(Patch(int(i), s, float(g)), r)
         except TooConcave as exc:

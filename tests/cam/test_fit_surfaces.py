@@ -41,7 +41,7 @@ def test_cylinder_section_and_paraboloid_are_within_tolerance(shape, extent):
     result = fit_patches(V, [ids], MV, MF)
     (p,) = result.patches
     assert p.within_tolerance and p.max_error_mm < 0.01 and p.surface_to_mesh_mm < 0.01
-    assert result.over_tolerance == []
+    assert result.over_tolerance == [] and result.folded == [] and p.folded_fraction == 0.0
     # Normals follow the quad grid's orientation: they agree with the shape's upward normal.
     h = 1e-4
     s0, t0 = extent[0] / 2, extent[1] / 2

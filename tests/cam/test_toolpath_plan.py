@@ -35,6 +35,30 @@ def test_tool_too_large_for_a_hollow_is_reported_not_cut():
     assert not plan.unmachined and plan.setups[0].patches[0].certified_scallop_mm <= 0.05
 
 
+def _folded_plane():
+    """A 10 x 10 mm plane with control columns at x = 0, 2.5, 9.5, 3, 10: x(u) turns back, an S-fold."""
+    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+
+    g = np.linspace(0, 10, 5)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    P = np.stack([X, Y + 20.0, np.zeros_like(X)], -1)  # beside the plane the test machines
+    P[2, :, 0], P[3, :, 0] = 9.5, 3.0
+    k = clamped_uniform_knots(5)
+    return make_bspline_surface(P, k, k)
+
+
+def test_a_folded_surface_is_found_and_reported_not_cut():
+    from cam.bspline import find_folds
+
+    flat = analytic.plane(10, 10, z=-5.0)
+    assert find_folds(flat) == (0.0, None)
+    fraction, at = find_folds(_folded_plane())
+    assert 0 < fraction < 1 and 0.0 < at[0] < 10.0
+    plan = plan_job([3, 8], [_folded_plane(), flat], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    assert [u["patch"] for u in plan.unmachined] == [3] and "folds over itself" in plan.unmachined[0]["reason"]
+    assert [p.patch for s in plan.setups for p in s.patches] == [8]
+
+
 def test_certificate_holds_and_adaptive_beats_the_paper_on_a_dome():
     dome = analytic.paraboloid(15.0, 16.0)
     out = {}

@@ -75,7 +75,10 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
                          f"fit.tolerance_mm = {result.tolerance_mm} mm (worst: patch {ids[worst.index]}, "
                          f"{worst.max_error_mm:.4f} mm); raise fit.tolerance_mm or fit.max_refinements, or set "
                          "fit.require_tolerance to false to accept them", outputs=out)
-    ctx.progress(1.0, None if not over else f"{len(over)} patches over tolerance: {over}")
+    folded = [ids[k] for k in result.folded]
+    notes = ([f"{len(over)} patches over tolerance: {over}"] if over else []) + (
+        [f"{len(folded)} surfaces fold over themselves: {folded}"] if folded else [])
+    ctx.progress(1.0, "; ".join(notes) or None)
     return out
 
 
@@ -96,12 +99,14 @@ def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | N
                  "max_error_mm": p.max_error_mm,
                  "mean_error_mm": p.mean_error_mm, "surface_to_mesh_mm": p.surface_to_mesh_mm,
                  "boundary_error_mm": p.boundary_error_mm, "within_tolerance": p.within_tolerance,
+                 "folded_fraction": p.folded_fraction,
                  "samples": p.samples, "refinements": p.refinements,
                  "neighbours": [ids[k] for k in p.neighbours],
                  "sides": {name: [ids[k] for k in nb] for name, nb in p.side_neighbours.items()}}
         surfaces.append(entry)
     return {"units": "mm", "tolerance_mm": result.tolerance_mm, "max_c0_gap_mm": result.max_gap_mm,
             "boundary_curves": result.curves, "over_tolerance": [ids[k] for k in result.over_tolerance],
+            "folded": [ids[k] for k in result.folded],
             "skipped": list(skipped or []), "surfaces": surfaces}
 
 
