@@ -136,7 +136,7 @@ def run_quadriflow(
     deadline = time.monotonic() + timeout_s
     try:
         while talker.is_alive():
-            talker.join(_POLL_S)
+            talker.join(max(0.0, min(_POLL_S, deadline - time.monotonic())))  # a limit below the poll holds too
             if not talker.is_alive():
                 break
             if time.monotonic() > deadline:
