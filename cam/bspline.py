@@ -113,17 +113,27 @@ def surface_from_json(data: dict[str, Any]) -> BSplineSurface:
                                 degree=tuple(data.get("degree", (3, 3))))
 
 
-def find_folds(surface: BSplineSurface, *, samples: int = 33) -> tuple[float, np.ndarray | None]:
-    """Where a surface folds over itself: the share of a samples x samples parameter grid whose
-    normal S_u x S_v points against a neighbouring sample's, and one such point.
+def fold_mask(surface: BSplineSurface, *, samples: int = 33) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where a surface folds over itself on a samples x samples parameter grid.
 
     A regular patch keeps the direction of S_u x S_v; a fold reverses it, and there normals,
-    curvature and every offset built on them are meaningless. Samples where S_u x S_v vanishes
-    (a degenerate corner) are not counted. Returns (fraction in [0, 1], float64 (3,) point or None).
+    curvature and every offset built on them are meaningless. A sample is marked when its normal
+    points against a grid neighbour's; samples where S_u x S_v vanishes (a degenerate corner) are
+    not. Returns (bool mask, u, v), each (samples, samples).
     """
     (u0, u1), (v0, v1) = surface.domain
     uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
     n = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
+    folded = flipped_normals(n)
+    return folded, uu, vv
+
+
+def flipped_normals(normals: np.ndarray) -> np.ndarray:
+    """bool (a, b): samples of a grid of normals float (a, b, 3) that point against a grid neighbour's.
+
+    The normals need not be unit; those of vanishing length (a degenerate corner) are not marked.
+    """
+    n = np.asarray(normals, dtype=np.float64)
     length = np.linalg.norm(n, axis=-1)
     ok = length > 1e-9 * max(float(np.median(length)), 1e-300)
     n = n / np.where(ok, length, 1.0)[..., None]
@@ -135,6 +145,13 @@ def find_folds(surface: BSplineSurface, *, samples: int = 33) -> tuple[float, np
         flip = (np.einsum("ijk,ijk->ij", n[tuple(a)], n[tuple(b)]) < 0) & ok[tuple(a)] & ok[tuple(b)]
         folded[tuple(a)] |= flip
         folded[tuple(b)] |= flip
+    return folded
+
+
+def find_folds(surface: BSplineSurface, *, samples: int = 33) -> tuple[float, np.ndarray | None]:
+    """The share of a samples x samples parameter grid where the surface folds (`fold_mask`), and
+    one such point: (fraction in [0, 1], float64 (3,) mm or None)."""
+    folded, uu, vv = fold_mask(surface, samples=samples)
     if not folded.any():
         return 0.0, None
     i = np.unravel_index(np.argmax(folded), folded.shape)

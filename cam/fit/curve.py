@@ -17,7 +17,7 @@ import numpy as np
 from cam.fit.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
 from cam.fit.refine import split_spans
 
-__all__ = ["CurveFit", "fit_curve", "lattice_knots"]
+__all__ = ["CurveFit", "fit_curve", "lattice_knots", "turns_back"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,8 +60,20 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
     if P.ndim != 2 or P.shape[1] != 3 or t.shape != (len(P),):
         raise ValueError(f"need points (n, 3) and t (n,), got {P.shape} and {t.shape}")
     rounds = 0
+    previous = None
     while True:
         cp = _solve(P, t, k, constraints, length_mm, smoothing_mm2, degree)
+        stiffer = smoothing_mm2
+        for _ in range(4):  # data that zig-zag (a crease found on both sides) make a loop; bend less
+            if previous is not None or not turns_back(k, cp, degree=degree):
+                break
+            stiffer *= 100.0
+            cp = _solve(P, t, k, constraints, length_mm, stiffer, degree)
+        if previous is not None and turns_back(k, cp, degree=degree) and not turns_back(*previous[:2], degree=degree):
+            # Finer spans let the curve loop between its data: a border that turns back folds
+            # both patches on it. Keep the last curve that ran one way.
+            k, cp, worst = previous
+            break
         if deviation is not None:
             where = span_params(k, 8)
             err = np.asarray(deviation(evaluate_curve(k, cp, where, degree=degree)[0]), dtype=np.float64)
@@ -82,8 +94,15 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
         new = split_spans(k, where[err > tolerance_mm], degree=degree, min_span=min_span)
         if new.size == k.size and not moved:
             break
+        previous = (k, cp, worst)
         k, rounds = new, rounds + 1
     return CurveFit(knots=k, control_points=cp, max_error=worst)
+
+
+def turns_back(knots: np.ndarray, control_points: np.ndarray, *, degree: int = 3, per_span: int = 16) -> bool:
+    """Whether the curve's direction reverses anywhere (C'(t) against C'(t + dt), sampled per span)."""
+    d = evaluate_curve(knots, control_points, span_params(knots, per_span), degree=degree, derivatives=1)[1]
+    return bool(np.any(np.einsum("ij,ij->i", d[1:], d[:-1]) < 0))
 
 
 def _solve(P, t, knots, constraints, length_mm, smoothing_mm2, degree) -> np.ndarray:

@@ -78,10 +78,10 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         refit = fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
                             fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
                             clamped_samples=mode, warm=True, **options)
-        improved = refit.max_error < fit.max_error
+        improved = refit.max_error < fit.max_error and refit.folded <= fit.folded
         fit = refit if improved else fit
         # Each round can multiply the control points by four; a round that gains little means
         # the remaining error is not a lack of freedom (a border held by its curve, noise).
-        if refit.max_error > (1.0 - min_gain) * fit_before:
+        if not improved or refit.max_error > (1.0 - min_gain) * fit_before:
             break
     return fit, rounds

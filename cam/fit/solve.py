@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
+from cam.bspline import find_folds, make_bspline_surface
 from cam.fit.basis import surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
 from cam.fit.param import Anchors, foot_frames, project_points
 
@@ -48,6 +49,7 @@ class SurfaceFit:
     clamped: np.ndarray
     counted: np.ndarray
     iterations: int
+    folded: float = 0.0
 
     @property
     def max_error(self) -> float:
@@ -92,7 +94,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     u = u1, v = v0, v = v1; a patch fitted on its own, not across a crease, where samples beyond
     belong to the other face); "drop" ignores them (a border that is a shared curve).
     Stops when the largest distance is within tolerance and no longer improving, when it stops
-    improving, or after `iterations` steps; returns the best step seen.
+    improving, or after `iterations` steps; returns the best step seen: the least folded, and of
+    those the closest.
     """
     P = np.asarray(points, dtype=np.float64)
     Nm = np.asarray(normals, dtype=np.float64)
@@ -137,9 +140,14 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         off = r - along[:, None] * frame.normal
         clamped = np.linalg.norm(off, axis=1) > 1e-6 + 1e-3 * np.abs(along)
         counted = ~clamped if clamped_samples == "drop" else np.ones(len(P), dtype=bool)
-        fit = SurfaceFit(ku, kv, cp, u, v, dist, clamped, counted, it)
-        if best is None or fit.max_error < best.max_error * (1 - 1e-9):
-            stalls = 0 if best is None or fit.max_error < 0.95 * best.max_error else stalls + 1
+        fit = SurfaceFit(ku, kv, cp, u, v, dist, clamped, counted, it,
+                         find_folds(make_bspline_surface(cp, ku, kv, degree=degree))[0])
+        # Squared-distance steps leave tangential motion almost free, and as the smoothing decays
+        # a net can fold while it hugs the data ever closer: a step that folds more is no progress.
+        regular = best is None or fit.folded <= best.folded
+        if best is None or fit.folded < best.folded or regular and fit.max_error < best.max_error * (1 - 1e-9):
+            stalls = 0 if best is None or fit.folded < best.folded or fit.max_error < 0.95 * best.max_error \
+                else stalls + 1
             best = fit
         else:
             stalls += 1

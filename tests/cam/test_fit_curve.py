@@ -1,0 +1,38 @@
+"""Boundary curves: exact junctions, and no loops where the data zig-zag."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cam.fit.curve import fit_curve, lattice_knots, turns_back
+
+ENDS = [(0.0, np.zeros(3)), (10.0, np.array([10.0, 0.0, 0.0]))]
+
+
+def test_a_line_is_reproduced_through_its_ends():
+    t = np.linspace(0, 10, 41)
+    P = np.stack([t, 0.5 * t, np.zeros_like(t)], 1)
+    ends = [(0.0, P[0]), (10.0, P[-1])]
+    fit = fit_curve(P, t, knots=lattice_knots(0, 10, 2.0), constraints=ends, length_mm=11.2, tolerance_mm=1e-6)
+    assert fit.max_error < 1e-6 and not turns_back(fit.knots, fit.control_points)
+
+
+def test_zig_zag_data_do_not_make_the_curve_turn_back():
+    # Points on a line whose parameters disagree with their order (a crease snapped to both sides).
+    t = np.linspace(0, 10, 81)
+    P = np.stack([t + 0.6 * (-1.0) ** np.arange(81), np.zeros_like(t), np.zeros_like(t)], 1)
+    knots = lattice_knots(0, 10, 0.25)
+    fit = fit_curve(P, t, knots=knots, constraints=ENDS, length_mm=10.0, tolerance_mm=0.01, max_refinements=0,
+                    smoothing_mm2=1e-8)
+    assert not turns_back(fit.knots, fit.control_points)
+    # The ends stay exact whatever the smoothing became.
+    from cam.fit.basis import evaluate_curve
+
+    ends = evaluate_curve(fit.knots, fit.control_points, np.array([0.0, 10.0]))[0]
+    np.testing.assert_allclose(ends, [[0, 0, 0], [10, 0, 0]], atol=1e-9)
+
+
+def test_turns_back_sees_a_loop():
+    knots = np.array([0, 0, 0, 0, 1, 1, 1, 1], dtype=float)
+    assert turns_back(knots, np.array([[0, 0, 0], [3, 0, 0], [-1, 0, 0], [2, 0, 0]], dtype=float))
+    assert not turns_back(knots, np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], dtype=float))
