@@ -78,27 +78,31 @@ def reach(index: SurfaceIndex, patch: Patch, r: float, *, samples: int = 10) -> 
 
 def assign_setups(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarray, setups: list[Setup], *,
                   r: float, min_reach: float = 0.5, spacing_mm: float | None = None,
-                  skip: set[int] = frozenset()) -> Assignment:
+                  skip: set[int] = frozenset(), obstacles: list[BSplineSurface] | None = None) -> Assignment:
     """Give every patch the setup that reaches most of it; add the opposite setup when that helps.
 
     Patches in `skip` (already reported by the caller) still count as part of the part but get no setup.
+    obstacles: the whole surfaces the tool must not cut, when `surfaces` are only the parts to finish.
     """
     if not setups:
         raise ValueError("at least one setup is needed")
     spacing = spacing_mm or max(r / 4, 0.25)
     out = Assignment(setups=list(setups))
     scores: dict[int, list[tuple[float, str]]] = {i: [] for i in ids}
+    solid = surfaces if obstacles is None else obstacles
+
+    def reaches(setup: Setup, which) -> None:
+        index = build_index(machine_patches(ids, solid, signs, setup), spacing_mm=spacing)
+        for p in machine_patches(ids, surfaces, signs, setup):
+            scores[p.id].append(reach(index, p, r) if which(p.id) else (-1.0, ""))
+
     for setup in setups:
-        index = build_index(machine_patches(ids, surfaces, signs, setup), spacing_mm=spacing)
-        for p in index.patches:
-            scores[p.id].append(reach(index, p, r))
+        reaches(setup, lambda i: True)
     weak = [i for i in ids if i not in skip and max(f for f, _ in scores[i]) < min_reach]
     extra = None
     if weak:
-        extra = opposite_setup(setups[0], surfaces, new_id=max(s.id for s in setups) + 1)
-        index = build_index(machine_patches(ids, surfaces, signs, extra), spacing_mm=spacing)
-        for p in index.patches:
-            scores[p.id].append(reach(index, p, r) if p.id in weak else (-1.0, ""))
+        extra = opposite_setup(setups[0], solid, new_id=max(s.id for s in setups) + 1)
+        reaches(extra, lambda i: i in weak)
     all_setups = list(setups) + ([extra] if extra is not None else [])
     used = set()
     for i in ids:

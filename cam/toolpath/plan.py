@@ -14,12 +14,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.bspline import BSplineSurface, find_folds
+from cam.bspline import BSplineSurface
 from cam.toolpath.access import Assignment, Setup, assign_setups, machine_patches
 from cam.toolpath.chord import discretize, lattices
 from cam.toolpath.geometry import Patch, frame
 from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
-from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
+from cam.toolpath.grid import TooConcave, ring_grid
+from cam.toolpath.region import finishable_region, sub_surface
 from cam.toolpath.link import MoveList, link_passes, order_patches
 from cam.toolpath.rings import ring_path
 
@@ -77,6 +78,7 @@ class Plan:
     chord_tolerance_mm: float
     strategy: str
     stats: dict = field(default_factory=dict)
+    partial: list[dict] = field(default_factory=list)
 
     @property
     def certified_scallop_mm(self) -> float:
@@ -263,22 +265,24 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     progress = progress or (lambda f, m=None: None)
     check_cancel = check_cancel or (lambda: None)
     progress(0.02, "setups and accessibility")
-    unmachined = []
-    for i, s, g in zip(ids, surfaces, signs):  # a hollow the ball does not fit is reported, never cut
-        fraction, at = find_folds(s)
-        if fraction > 0:
-            # A fold hugs the mesh and passes the fit's distance test, but its normals flip: ball
-            # centres, curvature and the scallop relations built on them mean nothing there.
-            unmachined.append({"patch": int(i), "reason": (
-                f"its fitted surface folds over itself ({fraction:.1%} of it, near "
-                f"{np.round(at, 3).tolist()}): no scallop bound can be certified on it; refit the patch "
-                "(fit lists it under 'folded') or change remesh.target_faces")})
+    unmachined, partial = [], []
+    kept: dict[int, float] = {}
+    whole = list(surfaces)  # what the tool must not cut: every surface, whole
+    surfaces = list(surfaces)  # what it finishes
+    for k, (i, s, g) in enumerate(zip(ids, surfaces, signs)):
+        # Folds and hollows tighter than the ball are left out (the sides move in past them) or, when
+        # they are inside, the patch is reported: never cut, never given a bound it cannot keep.
+        region = finishable_region(Patch(int(i), s, float(g)), r)
+        if region.box is None or region.kept < min_reach:
+            unmachined.append({"patch": int(i), "reason": region.reason if region.box is None else
+                               f"only {region.kept:.0%} of it can be finished: {region.reason}"})
             continue
-        try:
-            check_concavity(Patch(int(i), s, float(g)), r)
-        except TooConcave as exc:
-            unmachined.append({"patch": int(i), "reason": str(exc)})
-    assignment: Assignment = assign_setups(ids, surfaces, signs, setups, r=r, min_reach=min_reach,
+        if region.reason:
+            surfaces[k] = sub_surface(s, region.box)
+            kept[int(i)] = region.kept
+            partial.append({"patch": int(i), "region": list(region.box), "kept": region.kept,
+                            "reason": region.reason})
+    assignment: Assignment = assign_setups(ids, surfaces, signs, setups, r=r, min_reach=min_reach, obstacles=whole,
                                            skip={u["patch"] for u in unmachined})
     unmachined += assignment.unmachined
     total = max(sum(len(v) for v in assignment.patches.values()), 1)
@@ -287,7 +291,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     for position, setup in enumerate(assignment.setups):
         mine = assignment.patches.get(setup.id, [])
         patches = machine_patches(ids, surfaces, signs, setup)
-        index = build_index(patches, spacing_mm=max(r / 6, 0.2))
+        index = build_index(machine_patches(ids, whole, signs, setup), spacing_mm=max(r / 6, 0.2))
         plans = []
         for p in patches:
             if p.id not in mine:
@@ -297,7 +301,8 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
             try:
                 plans.append(plan_patch(p, index, r=r, h=h, chord_fraction=chord_fraction,
                                         samples_per_line=samples_per_line, strategy=strategy,
-                                        reach_fraction=assignment.reach.get(p.id, 1.0), check_cancel=check_cancel))
+                                        reach_fraction=assignment.reach.get(p.id, 1.0) * kept.get(p.id, 1.0),
+                                        check_cancel=check_cancel))
             except (TooConcave, Unreachable) as exc:
                 unmachined.append({"patch": p.id, "reason": str(exc)})
             done += 1
@@ -321,4 +326,4 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     progress(0.97, "linking done")
     return Plan(setups=out_setups, unmachined=unmachined, tool_radius_mm=r, scallop_height_mm=h,
                 scallop_share_mm=(1 - chord_fraction) * h - ROUNDING_MM, chord_tolerance_mm=chord_fraction * h,
-                strategy=strategy)
+                strategy=strategy, partial=partial)

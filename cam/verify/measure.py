@@ -19,6 +19,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
+from cam.bspline import flipped_normals
 from cam.gcode.parser import ParsedProgram
 from cam.toolpath.geometry import Patch
 from cam.verify.sweep import Sweep
@@ -197,7 +198,7 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
                                for p in part])
     solid = _Part(part_pts, cell=spacing, r=r, tol=reach_tol_mm)
     verts, faces, values, owner, per_patch = [], [], [], [], []
-    all_h, all_w, all_reach, gouge_cut, gouge_air = [], [], [], 0.0, 0.0
+    all_h, all_w, all_reach, all_folded, gouge_cut, gouge_air = [], [], [], [], 0.0, 0.0
     best = (-1.0, None, None)
     for patch in machined:
         check_cancel()
@@ -205,9 +206,13 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
         uu, vv = np.meshgrid(gu, gv, indexing="ij")
         p, n, area = _eval(patch, uu.ravel(), vv.ravel())
         weight = area * (gu[-1] - gu[0]) * (gv[-1] - gv[0]) / (len(gu) * len(gv))
-        ok = solid.reachable(p, n)
+        # Where the surface folds over itself its normal flips: neither material left nor overcut can
+        # be measured along it. Such samples are counted apart and as not reachable.
+        folded = flipped_normals(n.reshape(len(gu), len(gv), 3)).ravel()
+        ok = solid.reachable(p, n) & ~folded
         h, g_cut = cut.probe(p, n, reach)
         _, g_air = air.probe(p, n, reach)
+        g_cut, g_air = np.where(folded, 0.0, g_cut), np.where(folded, 0.0, g_air)
         gouge_cut, gouge_air = max(gouge_cut, float(g_cut.max(initial=0))), max(gouge_air, float(g_air.max(initial=0)))
         hv = np.where(ok, h, np.nan)
         finite = ok & np.isfinite(h)
@@ -220,12 +225,14 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
             "patch": patch.id, "samples": len(p), "max_scallop_mm": h_max if np.any(finite) else None,
             "p99_scallop_mm": float(np.percentile(h[finite], 99)) if np.any(finite) else None,
             "fraction_reachable": float(weight[ok].sum() / weight.sum()),
+            "fraction_folded": float(weight[folded].sum() / weight.sum()),
             "fraction_reached": float(weight[reached].sum() / max(weight[ok].sum(), 1e-300)),
             "max_gouge_mm": float(g_cut.max(initial=0)), "max_rapid_gouge_mm": float(g_air.max(initial=0)),
         })
         all_h.append(np.where(finite, h, np.nan))
         all_w.append(weight)
         all_reach.append(ok)
+        all_folded.append(folded)
         nu, nv = len(gu), len(gv)
         base = sum(len(x) for x in verts)
         ii, jj = np.meshgrid(np.arange(nu - 1), np.arange(nv - 1), indexing="ij")
@@ -248,6 +255,8 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
         "mean_scallop_mm": float(np.average(h_all[fin], weights=w_all[fin])) if np.any(fin) else None,
         "fraction_over_target": float(w_all[fin & (np.nan_to_num(h_all) > target_mm * (1 + 1e-9))].sum() / max(w_ok, 1e-300)),
         "fraction_unreachable": float(w_all[~ok_all].sum() / max(w_all.sum(), 1e-300)),
+        "fraction_folded": float(w_all[np.concatenate(all_folded)].sum() / max(w_all.sum(), 1e-300))
+        if all_folded else 0.0,
         "fraction_never_reached": float(w_all[ok_all & ~fin].sum() / max(w_ok, 1e-300)),
         "uncut_area_mm2": float(w_all[ok_all & ~fin].sum()),
         "max_gouge_mm": gouge_cut, "max_rapid_gouge_mm": gouge_air,

@@ -95,3 +95,26 @@ def test_a_patch_facing_down_goes_to_the_opposite_setup():
     assert np.allclose(plan.setups[1].setup.rotation, np.diag([1.0, -1.0, -1.0]))
     with pytest.raises(ValueError, match="scallop height"):
         plan_job([1], [top], EYE, tool_radius_mm=3.0, scallop_height_mm=3.5)
+
+
+def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
+    from cam.bspline import clamped_uniform_knots, find_folds, make_bspline_surface
+    from cam.toolpath.geometry import Patch
+    from cam.toolpath.region import finishable_region
+
+    g = np.linspace(0, 10, 8)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    P = np.stack([X, Y, np.zeros_like(X)], -1)
+    P[6, :, 0] = 10.6  # past the border column (x = 10): a thin lip folds back along u = 1
+    k = clamped_uniform_knots(8)
+    lip = make_bspline_surface(P, k, k)
+    assert find_folds(lip)[0] > 0
+    region = finishable_region(Patch(4, lip), 3.0)
+    assert region.box[1] < 1.0 and 0.8 < region.kept < 1.0 and "folds over itself" in region.reason
+    plan = plan_job([4], [lip], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    assert plan.unmachined == []
+    (pp,) = plan.setups[0].patches
+    assert pp.reach_fraction == pytest.approx(region.kept) and pp.certified_scallop_mm <= 0.16
+    tips = np.concatenate(pp.passes)
+    # Every contact point (a plane: tip = contact) lies in the kept part, short of the lip.
+    assert tips[:, 0].max() <= float(lip.evaluate(np.array([region.box[1]]), np.array([0.5]))[0, 0]) + 1e-6

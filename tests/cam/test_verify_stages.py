@@ -58,3 +58,30 @@ def test_plan_then_verify(tmp_path):
     with pytest.raises(StageError, match=r"cutting move cuts 0\.49") as err:
         run_verify(bctx)
     assert "verify.json" in err.value.outputs
+
+
+def test_a_partly_finished_patch_is_claimed_and_verified_on_its_claim(tmp_path):
+    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+    from worker.stages.plan import run_plan
+    from worker.stages.verify import run_verify
+
+    g = np.linspace(0, 10, 8)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    P = np.stack([X, Y, np.zeros_like(X)], -1)
+    P[6, :, 0] = 10.6  # a lip that folds back along u = 1
+    k = clamped_uniform_knots(8)
+    lip = make_bspline_surface(P, k, k)
+    (tmp_path / "surfaces.json").write_text(json.dumps({"surfaces": [{"patch": 5, **lip.to_json(),
+                                                                      "max_error_mm": 0.0}]}))
+    (tmp_path / "setup.json").write_text(json.dumps({"setups": [{"id": 1, "rotation": np.eye(3).tolist(),
+                                                                 "translation": [0, 0, 10]}]}))
+    out = run_plan(_ctx(tmp_path, "plan", {"surfaces.json": tmp_path / "surfaces.json",
+                                           "setup.json": tmp_path / "setup.json"}))
+    (entry,) = json.loads(out["setup.json"].read_text())["setups"][:1]
+    (claim,) = entry["partial"]
+    assert claim["patch"] == 5 and claim["region"][1] < 1.0 and "folds over itself" in claim["reason"]
+    report = json.loads(run_verify(_ctx(tmp_path, "verify", {
+        "surfaces.json": tmp_path / "surfaces.json", "setup.json": out["setup.json"],
+        "program.nc": out["program.nc"]}))["verify.json"].read_text())
+    assert report["passed"] and report["max_scallop_mm"] <= report["certified_scallop_mm"] <= 0.16
+    assert report["max_gouge_mm"] < 1e-3

@@ -111,12 +111,15 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
                     writer.writerow([sp.setup.id, pp.patch, j, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}"])
         setups_json.append({"id": sp.setup.id, "rotation": sp.setup.rotation.tolist(),
                             "translation": sp.setup.translation.tolist(), "program": sp.program,
-                            "patches": patch_ids, "unmachined": unmachined if k == 0 else []})
+                            "patches": patch_ids, "unmachined": unmachined if k == 0 else [],
+                            # Patches finished only on a parameter rectangle (u0, u1, v0, v1): the claim
+                            # verify holds the program to; the rest is left, with the reason.
+                            "partial": [q for q in plan.partial if q["patch"] in patch_ids]})
     toolpath = {
         "tool": {"shape": "ball", "radius_mm": plan.tool_radius_mm, "number": tool["tool_number"]},
         "scallop_height_mm": plan.scallop_height_mm, "scallop_share_mm": plan.scallop_share_mm,
         "chord_tolerance_mm": plan.chord_tolerance_mm, "strategy": plan.strategy,
-        "certified_scallop_mm": plan.certified_scallop_mm, "unmachined": unmachined,
+        "certified_scallop_mm": plan.certified_scallop_mm, "unmachined": unmachined, "partial": plan.partial,
         "setups": [{
             "id": sp.setup.id, "program": sp.program, "stats": sp.moves.stats(),
             "patches": [{

@@ -9,6 +9,8 @@ import numpy as np
 from cam.gcode import GCodeError, parse_program
 from cam.io.atomic import atomic_write
 from cam.toolpath.access import machine_patches
+from cam.toolpath.geometry import Patch
+from cam.toolpath.region import sub_surface
 from cam.toolpath.scallop import flat_spacing
 from cam.verify import heat_colors, measure_program
 from worker.context import StageContext, StageError, write_json
@@ -55,6 +57,14 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
         certified = float(certified.split()[0]) if certified else None
         part = machine_patches(ids, surfaces, signs, setup)
         machined = [p for p in part if p.id in set(entry["patches"])]
+        # A patch the planner finishes only in part is held to its claim on that rectangle alone.
+        try:
+            claims = {int(q["patch"]): tuple(float(x) for x in q["region"]) for q in entry.get("partial") or []}
+            machined = [Patch(p.id, sub_surface(p.surface, claims[p.id]), p.sign) if p.id in claims else p
+                        for p in machined]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise StageError(f"setup {setup.id} in setup.json has a 'partial' entry that is not a parameter "
+                             f"rectangle inside its patch: {exc}") from exc
         ctx.progress(0.05 + 0.9 * k / len(setups), f"measuring {name}")
         m = measure_program(program, machined, part, tool_radius_mm=r, target_mm=target,
                             interval_mm=float(flat_spacing(target, r)),
