@@ -20,7 +20,7 @@ from cam.toolpath.chord import discretize, lattices
 from cam.toolpath.geometry import Patch, frame
 from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
 from cam.toolpath.grid import TooConcave, ring_grid
-from cam.toolpath.region import finishable_region, sub_surface
+from cam.toolpath.region import Region, area_share, finishable_region, sub_surface
 from cam.toolpath.link import MoveList, link_passes, order_patches
 from cam.toolpath.rings import ring_path
 
@@ -188,6 +188,21 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
                      time_s=time.perf_counter() - t0)
 
 
+def _claim(surface, planned: tuple[float, float, float, float], trimmed: Region | None) -> dict | None:
+    """What a patch planned on a sub-rectangle claims: the rectangle, its share of the patch's area and
+    why the rest is left (None when the whole patch is planned). Verify holds the program to this claim."""
+    (u0, u1), (v0, v1) = surface.domain
+    full = (u0, u1, v0, v1)
+    scale = max(u1 - u0, v1 - v0)
+    if np.allclose(planned, full, rtol=0, atol=1e-12 * scale):
+        return None
+    reasons = [trimmed.reason] if trimmed is not None else []
+    inside = trimmed.box if trimmed is not None else full
+    if not np.allclose(planned, inside, rtol=0, atol=1e-12 * scale):
+        reasons.append("beyond it the ball cannot reach a side of the patch without touching a neighbouring surface")
+    return {"region": [float(x) for x in planned], "kept": area_share(surface, planned), "reason": "; ".join(reasons)}
+
+
 def _box(patch: Patch) -> tuple[float, float, float, float]:
     (u0, u1), (v0, v1) = patch.domain
     return (u0, u1, v0, v1)
@@ -267,6 +282,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     progress(0.02, "setups and accessibility")
     unmachined, partial = [], []
     kept: dict[int, float] = {}
+    trimmed: dict[int, Region] = {}
     whole = list(surfaces)  # what the tool must not cut: every surface, whole
     surfaces = list(surfaces)  # what it finishes
     for k, (i, s, g) in enumerate(zip(ids, surfaces, signs)):
@@ -280,8 +296,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
         if region.reason:
             surfaces[k] = sub_surface(s, region.box)
             kept[int(i)] = region.kept
-            partial.append({"patch": int(i), "region": list(region.box), "kept": region.kept,
-                            "reason": region.reason})
+            trimmed[int(i)] = region
     assignment: Assignment = assign_setups(ids, surfaces, signs, setups, r=r, min_reach=min_reach, obstacles=whole,
                                            skip={u["patch"] for u in unmachined})
     unmachined += assignment.unmachined
@@ -305,6 +320,10 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
                                         check_cancel=check_cancel))
             except (TooConcave, Unreachable) as exc:
                 unmachined.append({"patch": p.id, "reason": str(exc)})
+            else:
+                claim = _claim(whole[ids.index(p.id)], plans[-1].region, trimmed.get(p.id))
+                if claim is not None:
+                    partial.append({"patch": p.id, **claim})
             done += 1
         plans = [pp for pp in plans if pp.passes]
         top = max(float(np.max(s.control_points[..., 2])) for s in (q.surface for q in patches))

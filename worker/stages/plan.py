@@ -123,7 +123,7 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
         "setups": [{
             "id": sp.setup.id, "program": sp.program, "stats": sp.moves.stats(),
             "patches": [{
-                "patch": pp.patch, "passes": [_r(t, 4) for t in pp.passes],
+                "patch": pp.patch, "passes": [_r(t, 4) for t in pp.passes], "region": list(pp.region),
                 "certified_scallop_mm": pp.certified_scallop_mm,
                 "bound": {"relation": "exact circle intersection in the normal section",
                           "side_gaps_mm": pp.side_scallop_mm, "corner_pockets_mm": pp.corner_scallop_mm,
