@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.geometry import Patch, frame, normal_curvature
+from cam.toolpath.geometry import NotPlannable, Patch, frame, normal_curvature
 
 __all__ = ["PassPoints", "discretize", "lattices"]
 
@@ -137,4 +137,5 @@ def discretize(patch: Patch, uv: np.ndarray, kind: np.ndarray, *, r: float, tol:
         kinds = np.concatenate([kinds, kinds[split]])[np.argsort(np.concatenate([np.arange(len(kinds)),
                                                                                np.flatnonzero(split) + 0.5]),
                                                                 kind="stable")]
-    raise RuntimeError(f"chord error on patch {patch.id} did not settle below {tol} mm")
+    raise NotPlannable(f"the chord error of its passes did not settle below {tol:.4g} mm: the fitted surface is "
+                       "degenerate there; refit the patch")

@@ -25,6 +25,10 @@ __all__ = [
 ]
 
 
+class NotPlannable(ValueError):
+    """The planner found no pass layout that keeps its bound on this patch (degenerate geometry)."""
+
+
 @dataclass(frozen=True, eq=False)
 class Patch:
     """A surface in the machine frame. id: the patch id of `surfaces.json`; sign: +1 when S_u × S_v is outward."""

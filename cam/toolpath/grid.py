@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.geometry import Patch, frame, normal_curvature, principal_curvatures
+from cam.toolpath.geometry import NotPlannable, Patch, frame, normal_curvature, principal_curvatures
 from cam.toolpath.scallop import arc_gap, fits_concave, scallop_from_half_chord
 
 __all__ = ["RingGrid", "TooConcave", "check_concavity", "global_steps", "ring_grid"]
@@ -140,7 +140,9 @@ def side_step(patch: Patch, *, along: str, fixed: float, lo: float, hi: float, d
         if worst <= h * (1 + 1e-9):
             return step, worst
         step *= 0.995 * np.sqrt(h / worst)  # the scallop grows about quadratically with the step
-    raise RuntimeError(f"no admissible step found on patch {patch.id} (worst scallop {worst:.4g} mm)")
+    what = "curvature undefined there" if not np.isfinite(worst) else f"worst scallop {worst:.4g} mm"
+    raise NotPlannable(f"no pass interval keeps the scallop within {h:.4g} mm ({what}): the fitted surface is "
+                       "degenerate there; refit the patch")
 
 
 def global_steps(patch: Patch, *, r: float, h: float, samples: int) -> tuple[float, float]:

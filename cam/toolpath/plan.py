@@ -17,7 +17,7 @@ import numpy as np
 from cam.bspline import BSplineSurface
 from cam.toolpath.access import Assignment, Setup, assign_setups, machine_patches
 from cam.toolpath.chord import discretize, lattices
-from cam.toolpath.geometry import Patch, frame
+from cam.toolpath.geometry import NotPlannable, Patch, frame
 from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
 from cam.toolpath.grid import TooConcave, ring_grid
 from cam.toolpath.region import Region, area_share, finishable_region, sub_surface
@@ -318,7 +318,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
                                         samples_per_line=samples_per_line, strategy=strategy,
                                         reach_fraction=assignment.reach.get(p.id, 1.0) * kept.get(p.id, 1.0),
                                         check_cancel=check_cancel))
-            except (TooConcave, Unreachable) as exc:
+            except (TooConcave, Unreachable, NotPlannable) as exc:
                 unmachined.append({"patch": p.id, "reason": str(exc)})
             else:
                 claim = _claim(whole[ids.index(p.id)], plans[-1].region, trimmed.get(p.id))

@@ -118,3 +118,24 @@ def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
     tips = np.concatenate(pp.passes)
     # Every contact point (a plane: tip = contact) lies in the kept part, short of the lip.
     assert tips[:, 0].max() <= float(lip.evaluate(np.array([region.box[1]]), np.array([0.5]))[0, 0]) + 1e-6
+
+
+def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch):
+    import cam.toolpath.plan as plan_module
+    from cam.toolpath.geometry import NotPlannable
+
+    real = plan_module.plan_patch
+
+    def flaky(p, *args, **kwargs):
+        if p.id == 3:
+            raise NotPlannable("no pass interval keeps the scallop within 0.1439 mm (curvature undefined there)")
+        return real(p, *args, **kwargs)
+
+    monkeypatch.setattr(plan_module, "plan_patch", flaky)
+    from cam.toolpath.geometry import transform_surface
+
+    flat = analytic.plane(10, 10, z=-5.0)
+    beside = transform_surface(analytic.plane(10, 10), np.eye(3), np.array([0.0, 20.0, 0.0]))
+    plan = plan_job([3, 8], [beside, flat], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    assert [u["patch"] for u in plan.unmachined] == [3] and "curvature undefined" in plan.unmachined[0]["reason"]
+    assert [p.patch for s in plan.setups for p in s.patches] == [8]
