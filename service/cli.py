@@ -41,9 +41,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     print(f"cloud2cnc: dashboard and API at {url} (API docs at {url}docs); data in {settings.data_dir.resolve()}",
           flush=True)
+    # uvicorn shuts down on SIGTERM and then raises it again under the handler it found: with Python's
+    # default one that would end this process before `finally` stops the worker. Exit cleanly instead.
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(0))
     try:
         uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
     finally:
+        signal.signal(signal.SIGTERM, previous)
         if worker is not None:
             _stop(worker)
     return 0

@@ -63,3 +63,37 @@ def test_serve_runs_a_job_and_stops_cleanly_on_ctrl_c(tmp_path):
     assert proc.returncode == 0
     gone, alive = psutil.wait_procs(children, timeout=20)
     assert not alive, f"worker processes left running: {alive}"
+
+
+def test_sigterm_stops_the_worker_too(tmp_path):
+    # What docker stop, systemd and kill send. uvicorn re-raises the signal after its own shutdown; with
+    # Python's default handler that killed serve before it could stop its worker, which then kept taking
+    # jobs with whatever code it had loaded.
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("DATABASE_URL", "CELERY_BROKER_URL", "CLOUD2CNC_API_KEY", "CLOUD2CNC_STAGE_PLUGINS")}
+    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+                             "--data-dir", str(tmp_path / "data")], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert f"http://127.0.0.1:{port}/" in proc.stdout.readline()
+        deadline = time.monotonic() + 60
+        children = []
+        while time.monotonic() < deadline and not children:
+            children = psutil.Process(proc.pid).children(recursive=True)
+            time.sleep(0.2)
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(f"http://127.0.0.1:{port}/readyz").status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.2)
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert children, "serve started no worker process"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=40)
+    gone, alive = psutil.wait_procs(children, timeout=20)
+    for p in alive:
+        p.kill()
+    assert not alive, f"worker processes left running after SIGTERM: {alive}"
