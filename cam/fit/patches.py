@@ -100,8 +100,9 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     samples_per_face: mesh points taken inside each triangle besides its corners (0, 1, 3, 6 or
     10). max_samples_per_quad: the fit uses at most this many samples per patch quad on average
     (an evenly strided subset; a fine reconstructed mesh has ~100), None: all of them; the
-    reported errors are measured on every sample either way. on_progress (fraction, message) is
-    called between patches (it may raise to stop the fit).
+    reported errors are measured on every sample either way. min_span: refinement halves knot spans,
+    never below min_span quads. on_progress (fraction, message) is called between
+    patches (it may raise to stop the fit).
     """
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance_mm must be positive, got {tolerance_mm}")
@@ -320,7 +321,6 @@ def _constrained_start(k: int, layout: Layout, free: SurfaceFit, curves):
     cp[0, :] = refine_knots(*side["u0"], kv)[1]
     cp[-1, :] = refine_knots(*side["u1"], kv)[1]
     return ku, kv, cp
-
 
 
 def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:

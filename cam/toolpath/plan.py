@@ -306,7 +306,8 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     for position, setup in enumerate(assignment.setups):
         mine = assignment.patches.get(setup.id, [])
         patches = machine_patches(ids, surfaces, signs, setup)
-        index = build_index(machine_patches(ids, whole, signs, setup), spacing_mm=max(r / 6, 0.2))
+        solid = machine_patches(ids, whole, signs, setup)  # trimmed-off strips are still part of the part
+        index = build_index(solid, spacing_mm=max(r / 6, 0.2))
         plans = []
         for p in patches:
             if p.id not in mine:
@@ -326,7 +327,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
                     partial.append({"patch": p.id, **claim})
             done += 1
         plans = [pp for pp in plans if pp.passes]
-        top = max(float(np.max(s.control_points[..., 2])) for s in (q.surface for q in patches))
+        top = max(float(np.max(q.surface.control_points[..., 2])) for q in solid)
         clearance_z = top + clearance_mm
         entries = np.array([pp.passes[0][0] for pp in plans]).reshape(-1, 3)
         exits = np.array([pp.passes[-1][-1] for pp in plans]).reshape(-1, 3)
