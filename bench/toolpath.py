@@ -26,6 +26,7 @@ from cam.toolpath import analytic
 from cam.toolpath.access import Setup
 from cam.toolpath.geometry import Patch
 from cam.toolpath.plan import plan_job
+from cam.toolpath.region import surface_area
 from cam.toolpath.scallop import flat_spacing
 from cam.verify import measure_program
 
@@ -62,16 +63,6 @@ def run(surfaces, h, strategy):
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 CLOUD_POINTS = 50_000
-
-
-def surface_area(surface, box=None, n: int = 64) -> float:
-    """Area (mm²) of a surface over its domain or a parameter rectangle (midpoint rule)."""
-    (u0, u1), (v0, v1) = surface.domain
-    a, b, c, d = box or (u0, u1, v0, v1)
-    t = (np.arange(n) + 0.5) / n
-    uu, vv = np.meshgrid(a + t * (b - a), c + t * (d - c), indexing="ij")
-    nrm = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
-    return float(np.linalg.norm(nrm, axis=-1).mean()) * (b - a) * (d - c)
 
 
 def end_to_end(name: str) -> dict | None:

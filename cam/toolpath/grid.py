@@ -26,7 +26,7 @@ import numpy as np
 from cam.toolpath.geometry import NotPlannable, Patch, frame, normal_curvature, principal_curvatures
 from cam.toolpath.scallop import arc_gap, fits_concave, scallop_from_half_chord
 
-__all__ = ["RingGrid", "TooConcave", "check_concavity", "global_steps", "ring_grid"]
+__all__ = ["RingGrid", "TooConcave", "check_concavity", "concave_message", "global_steps", "ring_grid"]
 
 SIDES = ("v0", "u1", "v1", "u0")  # bottom, right, top, left of the parameter square
 
@@ -65,9 +65,13 @@ def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -
     if np.any(bad):
         i = np.unravel_index(np.argmin(kmin), kmin.shape)
         radius = -1.0 / kmin[i]
-        raise TooConcave(f"concave radius of curvature {radius:.3f} mm is not larger than the tool radius "
-                         f"{tool_radius_mm:g} mm near {np.round(fr.p[i], 3).tolist()}; use a smaller ball",
-                         radius_mm=float(radius), point=fr.p[i])
+        raise TooConcave(concave_message(radius, tool_radius_mm, fr.p[i]), radius_mm=float(radius), point=fr.p[i])
+
+
+def concave_message(radius_mm: float, tool_radius_mm: float, point: np.ndarray) -> str:
+    """What a user reads about a hollow the ball does not fit."""
+    return (f"concave radius of curvature {radius_mm:.3f} mm is not larger than the tool radius "
+            f"{tool_radius_mm:g} mm near {np.round(point, 3).tolist()}; use a smaller ball")
 
 
 def _line(patch: Patch, along: str, fixed: float, q: np.ndarray):

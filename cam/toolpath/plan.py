@@ -281,7 +281,6 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
     check_cancel = check_cancel or (lambda: None)
     progress(0.02, "setups and accessibility")
     unmachined, partial = [], []
-    kept: dict[int, float] = {}
     trimmed: dict[int, Region] = {}
     whole = list(surfaces)  # what the tool must not cut: every surface, whole
     surfaces = list(surfaces)  # what it finishes
@@ -295,7 +294,6 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
             continue
         if region.reason:
             surfaces[k] = sub_surface(s, region.box)
-            kept[int(i)] = region.kept
             trimmed[int(i)] = region
     assignment: Assignment = assign_setups(ids, surfaces, signs, setups, r=r, min_reach=min_reach, obstacles=whole,
                                            skip={u["patch"] for u in unmachined})
@@ -314,10 +312,10 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
                 continue
             check_cancel()
             progress(0.05 + 0.9 * done / total, f"setup {setup.id}: patch {p.id}")
+            share = assignment.reach.get(p.id, 1.0) * (trimmed[p.id].kept if p.id in trimmed else 1.0)
             try:
                 plans.append(plan_patch(p, index, r=r, h=h, chord_fraction=chord_fraction,
-                                        samples_per_line=samples_per_line, strategy=strategy,
-                                        reach_fraction=assignment.reach.get(p.id, 1.0) * kept.get(p.id, 1.0),
+                                        samples_per_line=samples_per_line, strategy=strategy, reach_fraction=share,
                                         check_cancel=check_cancel))
             except (TooConcave, Unreachable, NotPlannable) as exc:
                 unmachined.append({"patch": p.id, "reason": str(exc)})

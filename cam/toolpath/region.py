@@ -18,9 +18,10 @@ import numpy as np
 from cam.bspline import BSplineSurface, fold_mask
 from cam.fit.knots import sub_curve
 from cam.toolpath.geometry import Patch, frame, principal_curvatures
+from cam.toolpath.grid import concave_message
 from cam.toolpath.scallop import fits_concave
 
-__all__ = ["Region", "area_share", "finishable_region", "sub_surface"]
+__all__ = ["Region", "area_share", "finishable_region", "sub_surface", "surface_area"]
 
 
 @dataclass(frozen=True)
@@ -89,23 +90,25 @@ def _reason(patch: Patch, folded, hollow, kmin, fr, r: float) -> str:
                      "the patch (fit lists it under 'folded') or change remesh.target_faces")
     if hollow.any():
         i = np.unravel_index(np.argmin(np.where(hollow, kmin, np.inf)), kmin.shape)
-        parts.append(f"concave radius of curvature {-1.0 / kmin[i]:.3f} mm is not larger than the tool radius "
-                     f"{r:g} mm near {np.round(fr.p[i], 3).tolist()}; use a smaller ball")
+        parts.append(concave_message(-1.0 / kmin[i], r, fr.p[i]))
     return "; ".join(parts)
 
 
-def area_share(surface: BSplineSurface, box: tuple[float, float, float, float], *, samples: int = 64) -> float:
-    """The share of the surface's area inside the parameter rectangle `box` (midpoint rule)."""
+def surface_area(surface: BSplineSurface, box: tuple[float, float, float, float] | None = None, *,
+                 samples: int = 64) -> float:
+    """Area (mm²) of the surface over its domain or the parameter rectangle `box` (midpoint rule)."""
     (u0, u1), (v0, v1) = surface.domain
+    a, b, c, d = box if box is not None else (u0, u1, v0, v1)
+    t = (np.arange(samples) + 0.5) / samples
+    uu, vv = np.meshgrid(a + t * (b - a), c + t * (d - c), indexing="ij")
+    n = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
+    return float(np.linalg.norm(n, axis=-1).mean()) * (b - a) * (d - c)
 
-    def area(a: float, b: float, c: float, d: float) -> float:
-        t = (np.arange(samples) + 0.5) / samples
-        uu, vv = np.meshgrid(a + t * (b - a), c + t * (d - c), indexing="ij")
-        n = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
-        return float(np.linalg.norm(n, axis=-1).mean()) * (b - a) * (d - c)
 
-    total = area(u0, u1, v0, v1)
-    return area(*box) / total if total > 0 else 0.0
+def area_share(surface: BSplineSurface, box: tuple[float, float, float, float], *, samples: int = 64) -> float:
+    """The share of the surface's area inside the parameter rectangle `box`."""
+    total = surface_area(surface, samples=samples)
+    return surface_area(surface, box, samples=samples) / total if total > 0 else 0.0
 
 
 def sub_surface(surface: BSplineSurface, box: tuple[float, float, float, float]) -> BSplineSurface:
