@@ -29,6 +29,7 @@ __all__ = ["GOUGE_TOL_MM", "PatchPlan", "Plan", "SetupPlan", "plan_job", "plan_p
 GOUGE_TOL_MM = 1e-5
 ROUNDING_MM = 0.5e-4 * 3 ** 0.5  # 4 decimals per axis move a ball centre by at most this
 CORNER_SHARE = 0.97
+MAX_REPLANS = 6
 
 
 class Unreachable(ValueError):
@@ -39,7 +40,9 @@ class Unreachable(ValueError):
 @dataclass
 class PatchPlan:
     """One machined patch. passes: tool tips float64 (n_i, 3) per pass in cutting order (machine frame);
-    centres: the matching ball centres; certified_scallop_mm: the bound the planner certifies."""
+    centres: the matching ball centres; certified_scallop_mm: the bound the planner certifies on `region`;
+    replans: how often the rectangle was shrunk because the ball had to be lifted off the patch or left
+    out (excluded_points such positions in all); lift_mm: the largest lift kept (its effect is in the bound)."""
 
     patch: int
     region: tuple[float, float, float, float]
@@ -49,13 +52,14 @@ class PatchPlan:
     side_scallop_mm: float
     corner_scallop_mm: float
     chord_error_mm: float
+    lift_mm: float
     spacing_mm: tuple[float, float]
     rings: int
     excursions: int
     path_length_mm: float
     reach_fraction: float
-    lifted_points: int
-    dropped_points: int
+    replans: int
+    excluded_points: int
     strategy: str
     time_s: float
 
@@ -104,33 +108,33 @@ def _spacing(patch: Patch, rects: np.ndarray, steps: np.ndarray) -> tuple[float,
     return (float(vals.min()), float(vals.max())) if len(vals) else (0.0, 0.0)
 
 
-def _clear_path(index: SurfaceIndex, centres: np.ndarray, r: float, step: float):
+def _clear_path(index: SurfaceIndex, centres: np.ndarray, uv: np.ndarray, r: float, step: float):
     """Lift gouging positions, split moves that gouge, drop what the tool cannot reach.
 
-    Returns a list of centre runs (each float (n_i, 3)) and counts (lifted, dropped).
+    centres: ball centres float (n, 3); uv: their contact parameters (n, 2). Returns the centre runs
+    (each float (n_i, 3)), the lift of every lifted position (k,) mm with its parameters (k, 2), and the
+    parameters of every dropped position (j, 2): there the ball does not touch the patch as planned.
     """
     cl = clearance(index, centres, r)
-    lifted = int(np.sum(cl < -GOUGE_TOL_MM))
-    if lifted:
-        bad = cl < -GOUGE_TOL_MM
+    bad = cl < -GOUGE_TOL_MM
+    centres = centres.copy()
+    lifts, lift_uv, drop_uv = [np.zeros(0)], [np.zeros((0, 2))], []
+    if bad.any():
         fixed, lift = lift_to_clear(index, centres[bad], r, tol=GOUGE_TOL_MM / 10)
-        centres = centres.copy()
         centres[bad] = fixed
         centres[np.flatnonzero(bad)[np.isnan(lift)]] = np.nan
+        lifts.append(lift[np.isfinite(lift)])
+        lift_uv.append(uv[bad][np.isfinite(lift)])
     ok = np.all(np.isfinite(centres), axis=1)
     ok[ok] = shank_clear(index, centres[ok], r)
-    dropped = int(np.sum(~ok))
-    runs, current = [], []
-    for c, good in zip(centres, ok):
-        if good:
-            current.append(c)
-        elif current:
-            runs.append(np.array(current))
-            current = []
-    if current:
-        runs.append(np.array(current))
+    drop_uv.append(uv[~ok])
+    runs, start = [], 0
+    for i in np.flatnonzero(~ok).tolist() + [len(centres)]:
+        if i > start:
+            runs.append((centres[start:i], uv[start:i]))
+        start = i + 1
     out = []
-    for run in runs:
+    for run, ruv in runs:
         for _ in range(4):  # moves whose middle gouges get a lifted point where it is worst
             if len(run) < 2:
                 break
@@ -140,19 +144,49 @@ def _clear_path(index: SurfaceIndex, centres: np.ndarray, r: float, step: float)
                 break
             fix, lift = lift_to_clear(index, at[bad], r, tol=GOUGE_TOL_MM / 10)
             fix[np.isnan(lift)] = np.nan
+            mid = 0.5 * (ruv[bad] + ruv[bad + 1])
+            lifts.append(lift[np.isfinite(lift)])
+            lift_uv.append(mid[np.isfinite(lift)])
             run = np.insert(run, bad + 1, fix, axis=0)
-            lifted += len(bad)
+            ruv = np.insert(ruv, bad + 1, mid, axis=0)
         else:
             worst, _ = move_clearance(index, run[:-1], run[1:], r, step_mm=step)
             run[np.flatnonzero(worst < -GOUGE_TOL_MM) + 1] = np.nan
         good = np.all(np.isfinite(run), axis=1)
-        dropped += int(np.sum(~good))
+        drop_uv.append(ruv[~good])
         start = 0
         for i in np.flatnonzero(~good).tolist() + [len(run)]:
             if i > start:
                 out.append(run[start:i])
             start = i + 1
-    return out, lifted, dropped
+    return out, np.concatenate(lifts), np.concatenate(lift_uv), np.concatenate(drop_uv).reshape(-1, 2)
+
+
+def exclude_points(box: tuple[float, float, float, float], uv: np.ndarray, *,
+                   margin: float = 1 / 64) -> tuple[float, float, float, float]:
+    """The largest of a few boxes inside `box` free of the points (float (k, 2)): every side moved inward
+    past the points nearest to it, or one side moved past all of them (for trouble in the middle), each
+    `margin` of the width beyond; may come back empty (u0 >= u1 or v0 >= v1)."""
+    u0, u1, v0, v1 = box
+    wu, wv = u1 - u0, v1 - v0
+    q = uv[(uv[:, 0] >= u0) & (uv[:, 0] <= u1) & (uv[:, 1] >= v0) & (uv[:, 1] <= v1)]
+    if not len(q):
+        return box
+    depth = np.stack([(q[:, 0] - u0) / wu, (u1 - q[:, 0]) / wu, (q[:, 1] - v0) / wv, (v1 - q[:, 1]) / wv])
+    nearest = np.argmin(depth, axis=0)
+
+    def moved(side: int, d: float, b: list) -> list:
+        b = list(b)
+        step = (d + margin) * (wu if side < 2 else wv)
+        b[side] = b[side] + step if side % 2 == 0 else b[side] - step
+        return b
+
+    each = [u0, u1, v0, v1]
+    for side in range(4):
+        if np.any(nearest == side):
+            each = moved(side, float(depth[side, nearest == side].max()), each)
+    candidates = [each] + [moved(side, float(depth[side].max()), [u0, u1, v0, v1]) for side in range(4)]
+    return tuple(max(candidates, key=lambda b: max(b[1] - b[0], 0.0) * max(b[3] - b[2], 0.0)))
 
 
 def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_fraction: float = 0.1,
@@ -160,31 +194,56 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
                check_cancel=None) -> PatchPlan:
     """Plan one patch in its setup's machine frame; raises `TooConcave` when the ball does not fit."""
     t0 = time.perf_counter()
+    check_cancel = check_cancel or (lambda: None)
     h_s, tol = (1 - chord_fraction) * h - ROUNDING_MM, chord_fraction * h
     region = reachable_domain(patch, index, r=r, samples=samples_per_line)
-    if region[0] >= region[1] or region[2] >= region[3]:
-        raise Unreachable("the tool cannot reach the boundary of this patch without touching a neighbouring "
-                          "surface anywhere within half its width")
-    patch = Patch(patch.id, _restrict(patch.surface, region), patch.sign) if region != _box(patch) else patch
-    grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
-                     strategy=strategy, corner_mm=CORNER_SHARE * h_s)
-    path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
-                     check_cancel=check_cancel)
-    lat_u, lat_v = lattices(patch, r=r, tol=tol)
-    pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v)
-    runs, lifted, dropped = _clear_path(index, pts.centre, r, step=max(r / 4, 0.1))
+    whole, excluded = patch, 0
+    for attempt in range(MAX_REPLANS + 1):
+        if region[0] >= region[1] or region[2] >= region[3]:
+            raise Unreachable("the tool cannot reach the boundary of this patch without touching a neighbouring "
+                              "surface anywhere within half its width" if not excluded else
+                              "the ball cannot follow this patch without touching a neighbouring surface or "
+                              "the shank meeting the part")
+        patch = Patch(whole.id, _restrict(whole.surface, region), whole.sign) if region != _box(whole) else whole
+        grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
+                         strategy=strategy, corner_mm=CORNER_SHARE * h_s)
+        path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
+                         check_cancel=check_cancel)
+        lat_u, lat_v = lattices(patch, r=r, tol=tol)
+        pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v)
+        runs, lifts, lift_uv, drop_uv = _clear_path(index, pts.centre, pts.uv, r, step=max(r / 4, 0.1))
+        side = float(grid.side_scallop.max()) if grid.side_scallop.size else 0.0
+        corner = float(path.corner_scallop.max()) if path.corner_scallop.size else 0.0
+        chord = float(pts.chord_error.max()) if pts.chord_error.size else 0.0
+        spacing = _spacing(patch, grid.rects, grid.side_steps)
+        bound = max(side, corner) + chord + ROUNDING_MM
+        # A ball raised by δ moves the surface it cuts by at most δ; along a normal line, which meets a
+        # ball of a neighbouring pass at φ from its radius with sin φ ≤ (largest interval) / 2r, the
+        # material left grows by at most δ / cos φ. Lifts that fit in what the target leaves over are
+        # kept and added to the bound; larger ones, and dropped positions, are cut out of the rectangle.
+        sin_phi = min(spacing[1] / (2 * r), 1.0)
+        grow = 1 / np.sqrt(1 - sin_phi ** 2) if sin_phi < 0.95 else np.inf
+        big = lifts * grow > h - bound
+        off = np.concatenate([lift_uv[big], drop_uv])
+        if not len(off):
+            bound += grow * float(lifts.max(initial=0.0))
+            break
+        # Where the ball was lifted more or left out, it does not touch the patch as planned: the
+        # rectangle gives up the strip holding those positions and is planned again, so the claim holds.
+        excluded += len(off)
+        check_cancel()
+        region = exclude_points(region, off)
+    else:
+        raise Unreachable(f"the ball touches a neighbouring surface or the shank meets the part inside this patch; "
+                          f"after {MAX_REPLANS} smaller rectangles it still does")
     z = np.array([0.0, 0.0, r])
     passes = [run - z for run in runs]
     length = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
-    side = float(grid.side_scallop.max()) if grid.side_scallop.size else 0.0
-    corner = float(path.corner_scallop.max()) if path.corner_scallop.size else 0.0
-    chord = float(pts.chord_error.max()) if pts.chord_error.size else 0.0
-    return PatchPlan(patch=patch.id, passes=passes, centres=runs,
-                     certified_scallop_mm=max(side, corner) + chord + ROUNDING_MM, region=region,
+    return PatchPlan(patch=patch.id, passes=passes, centres=runs, certified_scallop_mm=bound, region=region,
                      side_scallop_mm=side, corner_scallop_mm=corner, chord_error_mm=chord,
-                     spacing_mm=_spacing(patch, grid.rects, grid.side_steps), rings=len(grid.rects),
+                     lift_mm=float(lifts.max(initial=0.0)), spacing_mm=spacing, rings=len(grid.rects),
                      excursions=path.excursions, path_length_mm=length, reach_fraction=reach_fraction,
-                     lifted_points=lifted, dropped_points=dropped, strategy=strategy,
+                     replans=attempt, excluded_points=excluded, strategy=strategy,
                      time_s=time.perf_counter() - t0)
 
 
@@ -199,7 +258,7 @@ def _claim(surface, planned: tuple[float, float, float, float], trimmed: Region 
     reasons = [trimmed.reason] if trimmed is not None else []
     inside = trimmed.box if trimmed is not None else full
     if not np.allclose(planned, inside, rtol=0, atol=1e-12 * scale):
-        reasons.append("beyond it the ball cannot reach a side of the patch without touching a neighbouring surface")
+        reasons.append("beyond it the ball would touch a neighbouring surface or its shank the part")
     return {"region": [float(x) for x in planned], "kept": area_share(surface, planned), "reason": "; ".join(reasons)}
 
 

@@ -5,7 +5,7 @@ centre = tool tip + r·Z), the surfaces are sampled on their own grid (spacing a
 pass interval), and a sample counts as reachable only when the tangent ball there contains no other
 sample of the part and no sample stands inside the shank above it. For every sample the normal line
 is met with every nearby swept capsule: the first entry above the surface is the material left there
-(the scallop), and a capsule reaching below the surface is an overcut (gouge), for cutting and rapid
+(the scallop), and a sample inside a capsule is overcut by its depth in it (gouge), for cutting and rapid
 moves separately. Around the highest samples the maximum is refined on finer local grids, since the
 cusp between two passes is a ridge that a grid only brushes.
 """

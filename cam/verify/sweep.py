@@ -24,6 +24,13 @@ def _sphere(p, n, c, r):
     return np.where(hit, -b - root, np.inf), np.where(hit, -b + root, -np.inf)
 
 
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of each point p to the segment a → b, row by row (float (m, 3) each)."""
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
 def capsule_intervals(p: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
     """[t_in, t_out] of lines p + t·n (unit n) with capsules a → b of radius r, row by row.
 
@@ -85,7 +92,8 @@ class Sweep:
 
     def probe(self, p: np.ndarray, n: np.ndarray, reach: float, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray]:
         """Per point p with outward unit normal n (float (k, 3)): the material left along n (first entry into
-        the swept volume, +inf when none within `reach`) and the overcut depth (≥ 0), both mm."""
+        the swept volume, +inf when none within `reach`) and the overcut (≥ 0: how deep p lies inside the
+        swept volume), both mm."""
         scallop = np.full(len(p), np.inf)
         gouge = np.zeros(len(p))
         for s in range(0, len(p), chunk):
@@ -98,7 +106,10 @@ class Sweep:
             sc = np.full(e - s, np.inf)
             np.minimum.at(sc, i, np.where(hit, np.maximum(t_in, 0.0), np.inf))
             scallop[s:e] = np.where(sc <= reach, sc, np.inf)
+            # The overcut is how deep the surface point lies inside the capsule: r minus its distance to
+            # the axis. The normal line's own depth (-t_in) overstates it wherever the line meets the
+            # capsule obliquely, e.g. a ball cutting the far face of a sharp edge next to the point.
             g = np.zeros(e - s)
-            np.maximum.at(g, i, np.where(hit, -t_in, 0.0))
+            np.maximum.at(g, i, np.maximum(self.r - _segment_distance(p[s:e][i], self.a[j], self.b[j]), 0.0))
             gouge[s:e] = g
         return scallop, gouge

@@ -16,7 +16,9 @@ from cam.toolpath.access import Setup
 from cam.toolpath.geometry import Patch
 from cam.toolpath.plan import plan_job
 from cam.toolpath.scallop import flat_spacing
+from cam.toolpath.region import sub_surface
 from cam.verify import measure_program
+from cam.verify.sweep import Sweep
 
 R_TOOL, TARGET = 3.0, 0.16
 
@@ -187,3 +189,35 @@ def test_hollow_edge_between_patches_is_not_gouged():
     assert m.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= TARGET
     # The rings start where the ball stops touching the other patch: each region is trimmed at the edge.
     assert plan.setups[0].patches[0].region[1] < 1.0 and plan.setups[0].patches[1].region[0] > 0.0
+
+
+def test_overhang_over_a_patch_is_left_out_of_its_claim():
+    # A plate 2 mm above the middle of a floor: the ball cannot touch the floor under it or next to it
+    # (it would cut the plate, and lifting it clear would leave material). The four sides of the floor
+    # are all reachable, so only planning the interior finds this; the floor's claim must give it up.
+    floor = analytic.plane(20.0, 16.0)
+    plate = analytic.fit_grid(lambda u, v: np.stack([8 + 4 * u, 6 + 4 * v, np.full_like(u, 2.0)], -1), n=(4, 4))
+    plan = plan_job([1, 2], [floor, plate], [Setup(1, np.eye(3), np.zeros(3))], tool_radius_mm=R_TOOL,
+                    scallop_height_mm=TARGET)
+    sp = plan.setups[0]
+    pp = next(p for p in sp.patches if p.patch == 1)
+    assert pp.replans >= 1 and pp.excluded_points > 0
+    u0, u1, v0, v1 = pp.region
+    assert (u1 - u0) * (v1 - v0) < 0.9  # the rectangle gave up the plate's neighbourhood
+    prog = parse_program(write_program(sp.moves, header={}))
+    part = [Patch(1, floor), Patch(2, plate)]
+    machined = [Patch(p.patch, sub_surface(part[p.patch - 1].surface, p.region)) for p in sp.patches]
+    m = measure_program(prog, machined, part, tool_radius_mm=R_TOOL, target_mm=TARGET,
+                        interval_mm=float(flat_spacing(TARGET, R_TOOL)))
+    assert m.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= TARGET
+    assert m.report["fraction_never_reached"] == 0
+    assert m.report["max_gouge_mm"] < 1e-3 and m.report["max_rapid_gouge_mm"] < 1e-3
+
+
+def test_overcut_is_the_depth_inside_the_cutter_not_along_the_normal():
+    # A ball beside a point of a flat face, its centre below the face's plane (it cuts the far face
+    # of a sharp edge): the point lies 0.0572 mm inside the ball, though the normal line runs 1.27 mm in it.
+    p, n = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])
+    c = np.array([[-2.9, 0.0, -0.5]])
+    _, gouge = Sweep(c, c + [[0.0, 1e-9, 0.0]], R_TOOL, step=1.0).probe(p, n, reach=1.0)
+    assert gouge[0] == pytest.approx(R_TOOL - np.hypot(2.9, 0.5), abs=1e-9)
