@@ -9,7 +9,7 @@ from cam.toolpath import analytic
 from cam.toolpath.access import Setup
 from cam.toolpath.geometry import Patch, frame, principal_curvatures
 from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
-from cam.toolpath.plan import plan_job
+from cam.toolpath.plan import exclude_points, plan_job
 
 EYE = [Setup(1, np.eye(3), np.zeros(3))]
 
@@ -139,3 +139,15 @@ def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch)
     plan = plan_job([3, 8], [beside, flat], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
     assert [u["patch"] for u in plan.unmachined] == [3] and "curvature undefined" in plan.unmachined[0]["reason"]
     assert [p.patch for s in plan.setups for p in s.patches] == [8]
+
+
+def test_exclude_points_moves_the_nearest_side_or_one_side_past_trouble_in_the_middle():
+    box = (0.0, 1.0, 0.0, 2.0)
+    # Two strips along the borders u = 0 and v = 2: each side moves past its own points only.
+    got = exclude_points(box, np.array([[0.05, 1.0], [0.5, 1.9]]), margin=0.0)
+    assert got == pytest.approx((0.05, 1.0, 0.0, 1.9))
+    # Points in the middle: one cut past all of them keeps more than moving two sides towards each other.
+    got = exclude_points(box, np.array([[0.45, 1.0], [0.55, 1.1]]), margin=0.0)
+    assert got == pytest.approx((0.0, 1.0, 0.0, 1.0))
+    # Points outside the box change nothing.
+    assert exclude_points(box, np.array([[2.0, 0.5]])) == box
