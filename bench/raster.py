@@ -26,6 +26,7 @@ from cam.toolpath.geometry import Patch
 from cam.toolpath.link import link_passes
 from cam.toolpath.scallop import flat_spacing
 from cam.verify import measure_program
+from cam.verify.measure import _grid as sample_grid  # the same spacing rule verify samples with
 
 
 THIN_MM = 5e-4  # on a convex pass a thinned chord dips into the part: keep it under the 0.001 mm gouge limit
@@ -36,13 +37,7 @@ def triangulate(patches: list[Patch], spacing_mm: float) -> np.ndarray:
     """All patches sampled about spacing_mm apart as one triangle soup, float64 (n, 3, 3)."""
     tris = []
     for p in patches:
-        (u0, u1), (v0, v1) = p.domain
-        g = np.linspace(0, 1, 9)
-        uu, vv = np.meshgrid(u0 + g * (u1 - u0), v0 + g * (v1 - v0), indexing="ij")
-        lu = np.max(np.linalg.norm(p.surface.evaluate(uu, vv, du=1), axis=-1)) * (u1 - u0)
-        lv = np.max(np.linalg.norm(p.surface.evaluate(uu, vv, dv=1), axis=-1)) * (v1 - v0)
-        nu, nv = int(np.clip(np.ceil(lu / spacing_mm), 2, 2000)) + 1, int(np.clip(np.ceil(lv / spacing_mm), 2, 2000)) + 1
-        uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
+        uu, vv = np.meshgrid(*sample_grid(p, spacing_mm, 2000), indexing="ij")
         x = p.surface.evaluate(uu, vv)
         a, b, c, d = x[:-1, :-1], x[1:, :-1], x[1:, 1:], x[:-1, 1:]
         tris += [np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)]

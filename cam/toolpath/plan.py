@@ -108,6 +108,12 @@ def _spacing(patch: Patch, rects: np.ndarray, steps: np.ndarray) -> tuple[float,
     return (float(vals.min()), float(vals.max())) if len(vals) else (0.0, 0.0)
 
 
+def _pieces(keep: np.ndarray) -> list[slice]:
+    """The maximal runs of True in a bool (n,) array, as slices."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(np.int8), [0]])))
+    return [slice(a, b) for a, b in zip(edges[::2], edges[1::2])]
+
+
 def _clear_path(index: SurfaceIndex, centres: np.ndarray, uv: np.ndarray, r: float, step: float):
     """Lift gouging positions, split moves that gouge, drop what the tool cannot reach.
 
@@ -128,13 +134,9 @@ def _clear_path(index: SurfaceIndex, centres: np.ndarray, uv: np.ndarray, r: flo
     ok = np.all(np.isfinite(centres), axis=1)
     ok[ok] = shank_clear(index, centres[ok], r)
     drop_uv.append(uv[~ok])
-    runs, start = [], 0
-    for i in np.flatnonzero(~ok).tolist() + [len(centres)]:
-        if i > start:
-            runs.append((centres[start:i], uv[start:i]))
-        start = i + 1
     out = []
-    for run, ruv in runs:
+    for piece in _pieces(ok):
+        run, ruv = centres[piece], uv[piece]
         for _ in range(4):  # moves whose middle gouges get a lifted point where it is worst
             if len(run) < 2:
                 break
@@ -154,11 +156,7 @@ def _clear_path(index: SurfaceIndex, centres: np.ndarray, uv: np.ndarray, r: flo
             run[np.flatnonzero(worst < -GOUGE_TOL_MM) + 1] = np.nan
         good = np.all(np.isfinite(run), axis=1)
         drop_uv.append(ruv[~good])
-        start = 0
-        for i in np.flatnonzero(~good).tolist() + [len(run)]:
-            if i > start:
-                out.append(run[start:i])
-            start = i + 1
+        out += [run[piece] for piece in _pieces(good)]
     return out, np.concatenate(lifts), np.concatenate(lift_uv), np.concatenate(drop_uv).reshape(-1, 2)
 
 

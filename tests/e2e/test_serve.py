@@ -24,27 +24,37 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_serve_runs_a_job_and_stops_cleanly_on_ctrl_c(tmp_path):
+def _serve(tmp_path, **env_extra) -> tuple[subprocess.Popen, int]:
+    """`cloud2cnc serve` in its embedded default on a free port, started as a user would."""
     port = _free_port()
     env = {k: v for k, v in os.environ.items()
            if k not in ("DATABASE_URL", "CELERY_BROKER_URL", "CLOUD2CNC_API_KEY", "CLOUD2CNC_STAGE_PLUGINS")}
-    # What is tested here is serve itself (API + worker process, a job through the broker, Ctrl-C); the
-    # geometry stages have their own tests, so the job runs ingest alone and the test stays short.
-    env["CLOUD2CNC_PIPELINE"] = "ingest"
+    env.update(env_extra)
     proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
                              "--data-dir", str(tmp_path / "data")], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return proc, port
+
+
+def _wait_ready(base: str, deadline: float) -> None:
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(f"{base}/readyz").status_code == 200:
+                return
+        except httpx.TransportError:
+            time.sleep(0.2)
+
+
+def test_serve_runs_a_job_and_stops_cleanly_on_ctrl_c(tmp_path):
+    # What is tested here is serve itself (API + worker process, a job through the broker, Ctrl-C); the
+    # geometry stages have their own tests, so the job runs ingest alone and the test stays short.
+    proc, port = _serve(tmp_path, CLOUD2CNC_PIPELINE="ingest")
     try:
         banner = proc.stdout.readline()
         assert f"http://127.0.0.1:{port}/" in banner
         base = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            try:
-                if httpx.get(f"{base}/readyz").status_code == 200:
-                    break
-            except httpx.TransportError:
-                time.sleep(0.2)
+        _wait_ready(base, deadline)
         with open(ROOT / "examples" / "dome_block.xyz", "rb") as fh:
             r = httpx.post(f"{base}/v1/jobs", files={"file": ("dome_block.xyz", fh)})
         assert r.status_code == 202, r.text
@@ -69,12 +79,7 @@ def test_sigterm_stops_the_worker_too(tmp_path):
     # What docker stop, systemd and kill send. uvicorn re-raises the signal after its own shutdown; with
     # Python's default handler that killed serve before it could stop its worker, which then kept taking
     # jobs with whatever code it had loaded.
-    port = _free_port()
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("DATABASE_URL", "CELERY_BROKER_URL", "CLOUD2CNC_API_KEY", "CLOUD2CNC_STAGE_PLUGINS")}
-    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
-                             "--data-dir", str(tmp_path / "data")], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc, port = _serve(tmp_path)
     try:
         assert f"http://127.0.0.1:{port}/" in proc.stdout.readline()
         deadline = time.monotonic() + 60
@@ -82,12 +87,7 @@ def test_sigterm_stops_the_worker_too(tmp_path):
         while time.monotonic() < deadline and not children:
             children = psutil.Process(proc.pid).children(recursive=True)
             time.sleep(0.2)
-        while time.monotonic() < deadline:
-            try:
-                if httpx.get(f"http://127.0.0.1:{port}/readyz").status_code == 200:
-                    break
-            except httpx.TransportError:
-                time.sleep(0.2)
+        _wait_ready(f"http://127.0.0.1:{port}", deadline)
         children = psutil.Process(proc.pid).children(recursive=True)
         assert children, "serve started no worker process"
     finally:
