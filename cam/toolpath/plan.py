@@ -28,13 +28,12 @@ __all__ = ["GOUGE_TOL_MM", "PatchPlan", "Plan", "SetupPlan", "plan_job", "plan_p
 
 GOUGE_TOL_MM = 1e-5
 ROUNDING_MM = 0.5e-4 * 3 ** 0.5  # 4 decimals per axis move a ball centre by at most this
-CORNER_SHARE = 0.97
+CORNER_SHARE = 0.97  # corner pockets are held a little under the side gaps, which then set the maximum
 MAX_REPLANS = 6
 
 
 class Unreachable(ValueError):
     """No part of the patch can be machined from this setup."""
-  # corner pockets are held a little under the side gaps, which then set the maximum
 
 
 @dataclass
@@ -206,7 +205,7 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
         grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
                          strategy=strategy, corner_mm=CORNER_SHARE * h_s)
         path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
-                         check_cancel=check_cancel)
+                         spiral=strategy == "adaptive", check_cancel=check_cancel)
         lat_u, lat_v = lattices(patch, r=r, tol=tol)
         pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v)
         runs, lifts, lift_uv, drop_uv = _clear_path(index, pts.centre, pts.uv, r, step=max(r / 4, 0.1))

@@ -2,16 +2,19 @@
 
 Order: outermost ring first. The first ring runs along the patch boundary — where the patch meets
 its neighbours at sharp edges — so the tool enters at the boundary, where an entry mark is hidden by
-the edge, and every later ring is reached by a short cutting link inward instead of a retract; the
-path ends in the middle of the patch, from where the retract leaves no mark on an edge.
+the edge, and every later ring is reached by a short cutting move inward instead of a retract (a
+spiral turn in our plan, a diagonal link in the paper's rings); the path ends in the middle of the
+patch, from where the retract leaves no mark on an edge.
 
 Between ring k and ring k + 1 the sides are covered by the grid's checked steps; what is left is the
-pocket at each corner, between the outer corner P and the inner corner Q. There the farthest point
-from every path is found numerically (a sampled max–min of 3D distances, refined twice) and turned
-into a scallop with the exact relation at the normal curvature towards the nearest contact. The link from ring k to
-ring k + 1 runs through the pocket of the start corner; at the three other corners a short excursion
-from Q towards P (and back) is added when the pocket would exceed its bound — the paper instead
-shrinks the whole side step (`shrink_for_corners`, used by its baseline).
+pocket at each corner, between the outer corner P and the inner corner Q. There the highest material
+is found numerically: at each sample the ball of the nearest contact leaves, by the exact relation at
+the normal curvature towards it, at most a known height; that height is maximised on a grid refined
+twice (maximising the distance instead misses pockets whose near side is convex). With concentric
+rings (the paper's, `spiral=False`) the link from ring k to ring k + 1 runs through the pocket of the
+start corner; our spiral turns instead (see `ring_path`). At the other corners a short excursion from
+Q towards P (and back) is added when the pocket would exceed its bound — the paper instead shrinks the
+whole side step (`shrink_for_corners`, used by its baseline).
 """
 
 from __future__ import annotations
@@ -39,11 +42,20 @@ def _segment_points(q0, q1, n) -> np.ndarray:
     return q0[None] * (1 - t) + q1[None] * t
 
 
-def _dist_to_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) -> np.ndarray:
+def _nearest_on_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (n,) from each x (n, 3) to the nearest of the segments (m, 3)–(m, 3), and that foot (n, 3)."""
     ab = seg_b - seg_a
     t = np.einsum("nmk,mk->nm", x[:, None, :] - seg_a[None], ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300)
     t = np.clip(t, 0.0, 1.0)
-    return np.min(np.linalg.norm(seg_a[None] + t[..., None] * ab[None] - x[:, None, :], axis=-1), axis=1)
+    foot = seg_a[None] + t[..., None] * ab[None]
+    d = np.linalg.norm(foot - x[:, None, :], axis=-1)
+    j = np.argmin(d, axis=1)
+    rows = np.arange(len(x))
+    return d[rows, j], foot[rows, j]
+
+
+def _dist_to_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) -> np.ndarray:
+    return _nearest_on_segments(x, seg_a, seg_b)[0]
 
 
 def _paths_near_corner(patch, outer, inner, corner, extra):
@@ -79,30 +91,38 @@ def corner_scallop(patch: Patch, outer, inner, corner: tuple[int, int], *, r: fl
         return 0.0, Q
     span = hi - lo
     centre, half = 0.5 * (lo + hi), 0.5 * span
-    best_rho, best_uv = -1.0, Q
-    for _ in range(3):  # coarse grid, then two finer grids around the farthest point
+    best_h, best_uv = -1.0, Q
+    for _ in range(3):  # coarse grid, then two finer grids around the highest point
         g = np.linspace(-1.0, 1.0, grid)
         uu, vv = np.meshgrid(centre[0] + g * half[0], centre[1] + g * half[1], indexing="ij")
         uv = np.clip(np.stack([uu.ravel(), vv.ravel()], -1), lo, hi)
-        x = patch.surface.evaluate(uv[:, 0], uv[:, 1])
-        rho = _dist_to_segments(x, seg_a, seg_b)
-        i = int(np.argmax(rho))
-        if rho[i] > best_rho:
-            best_rho, best_uv = float(rho[i]), uv[i]
+        h = _material(patch, uv, seg_a, seg_b, r)
+        i = int(np.argmax(h))
+        if h[i] > best_h:
+            best_h, best_uv = float(h[i]), uv[i]
         centre, half = best_uv, half * 2.5 / grid
-    # The material a ball leaves at surface distance ρ depends on the normal curvature towards its contact.
-    fr = frame(patch, best_uv[:1], best_uv[1:])
-    x = fr.p[0]
-    ab = seg_b - seg_a
-    t = np.clip(np.einsum("mk,mk->m", x - seg_a, ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300), 0, 1)
-    foot = seg_a + t[:, None] * ab
-    d = foot[np.argmin(np.linalg.norm(foot - x, axis=1))] - x
-    basis = np.stack([fr.su[0], fr.sv[0]], axis=1)
-    duv, *_ = np.linalg.lstsq(basis, d, rcond=None)
-    kappa = normal_curvature(fr, np.array([duv[0]]), np.array([duv[1]]))
-    if not np.all(np.isfinite(kappa)):
-        _, kappa = principal_curvatures(fr)
-    return float(scallop_from_arc_gap(2 * best_rho, r, kappa)[0]), best_uv
+    return best_h, best_uv
+
+
+def _material(patch: Patch, uv: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, r: float) -> np.ndarray:
+    """Material (mm) the ball at the nearest contact leaves at each point uv (n, 2): the exact relation at
+    twice the distance, with the normal curvature towards that contact. It bounds the material the paths
+    leave there from above (any one ball does). Its maximum, not that of the distance, is the pocket's
+    bound: a slightly nearer contact across a convex direction can leave more than the farthest point."""
+    fr = frame(patch, uv[:, 0], uv[:, 1])
+    rho, foot = _nearest_on_segments(fr.p, seg_a, seg_b)
+    d = foot - fr.p
+    basis = np.stack([fr.su, fr.sv], axis=-1)  # (n, 3, 2)
+    gram = np.einsum("nki,nkj->nij", basis, basis)
+    rhs = np.einsum("nki,nk->ni", basis, d)
+    det = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        du = (gram[:, 1, 1] * rhs[:, 0] - gram[:, 0, 1] * rhs[:, 1]) / det
+        dv = (gram[:, 0, 0] * rhs[:, 1] - gram[:, 0, 1] * rhs[:, 0]) / det
+        kappa = normal_curvature(fr, du, dv)
+    _, kmax = principal_curvatures(fr)
+    kappa = np.where(np.isfinite(kappa), kappa, kmax)
+    return np.asarray(scallop_from_arc_gap(2 * rho, r, kappa), dtype=np.float64)
 
 
 def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: list = ()) -> tuple[float, float]:
@@ -185,9 +205,34 @@ def _ring_loop(rect) -> list[np.ndarray]:
     return [np.array(p, dtype=np.float64) for p in ((a, c), (b, c), (b, d), (a, d), (a, c))]
 
 
+def _spiral_turn(patch: Patch, prev, rect, nxt, *, r: float, corner_mm: float, excursions: bool):
+    """The pocket where the spiral turns from ring `rect`'s shortened u0 side onto the next ring's v0 line.
+
+    It lies between P = (u0 of prev, v0 of rect), where the previous turn ran, and Q = (u0 of rect, v0 of
+    nxt): from P the paths run up the previous ring's u0 side and along rect's v0 line, from Q up rect's
+    u0 side and along nxt's v0 line, so it is a corner pocket of those two L's. Returns (excursion end
+    point or None, the pocket's scallop bound).
+    """
+    outer = (prev[0], rect[1], rect[2], prev[3])
+    inner = (rect[0], nxt[1], nxt[2], rect[3])
+    if not excursions:
+        return None, corner_scallop(patch, outer, inner, (0, 0), r=r)[0]
+    lam, val = excursion(patch, outer, inner, (0, 0), r=r, h=corner_mm)
+    P, Q = _corner_point(outer, (0, 0)), _corner_point(inner, (0, 0))
+    return (Q + lam * (P - Q) if lam > 0 else None), val
+
+
 def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, excursions: bool = True,
-              check_cancel=None) -> RingPath:
-    """Link the rings (outermost first) into one parameter path with corner excursions where needed."""
+              spiral: bool = False, check_cancel=None) -> RingPath:
+    """Link the rings (outermost first) into one parameter path with corner excursions where needed.
+
+    spiral=False closes every ring at its start corner and links it to the next along the diagonal of
+    that corner (the paper's concentric rings). spiral=True stops the closing side of ring k at the
+    next ring's v0 line and steps along that line to its start, so ring k + 1's first side simply
+    reaches back to u0: the start corner then has no pocket (the square there lies between the v0 lines
+    of ring k and k + 1, whose gap the side check already holds over all of [u0, u1]) and each ring
+    saves the diagonal link.
+    """
     points: list[np.ndarray] = []
     kinds: list[int] = []
     corner_vals: list[float] = []
@@ -206,6 +251,8 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
             outer = tuple(rects[k - 1])
             for corner in CORNERS:
                 P, Q = _corner_point(outer, corner), _corner_point(rect, corner)
+                if corner == (0, 0) and spiral:
+                    continue
                 if corner == (0, 0) or not excursions:
                     extra = [(P, Q)] if corner == (0, 0) else []
                     val, _ = corner_scallop(patch, outer, rect, corner, r=r, extra=extra)
@@ -214,11 +261,23 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
                     if lam > 0:
                         todo[corner] = Q + lam * (P - Q)
                 corner_vals.append(val)
-        for i, p in enumerate(_ring_loop(rect)):
-            add(p, 1 if (i == 0 and k > 0) else 0)
+        loop = _ring_loop(rect)
+        turn = None
+        if spiral and k + 1 < len(rects) and len(loop) == 5:
+            loop[-1] = np.array([rect[0], rects[k + 1][2]], dtype=np.float64)
+            if k > 0:
+                turn = _spiral_turn(patch, rects[k - 1], rect, rects[k + 1], r=r, corner_mm=corner_mm,
+                                    excursions=excursions)
+                corner_vals.append(turn[1])
+        for i, p in enumerate(loop):
+            add(p, 1 if (i == 0 and k > 0 and not spiral) else 0)
             for corner in [c for c in todo if np.array_equal(_corner_point(rect, c), p)]:
                 add(todo.pop(corner), 2)
                 add(p, 2)
                 n_exc += 1
+        if turn is not None and turn[0] is not None:
+            add(turn[0], 2)
+            add(loop[-1], 2)
+            n_exc += 1
     uv = np.array(points, dtype=np.float64).reshape(-1, 2)
     return RingPath(uv=uv, kind=np.array(kinds, dtype=np.int8), corner_scallop=np.array(corner_vals), excursions=n_exc)
