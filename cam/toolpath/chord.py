@@ -8,6 +8,13 @@ move stays on or above the ideal offset and leaves at most δ of extra material.
 hollow along the pass the chord lies above the curve and leaves at most δ too. Either way the
 material left is at most h_s + δ = h.
 
+A chord can also leave the centre curve sideways, in the tangent plane, where an iso-line bends
+within the surface (common on fitted patches whose domain square maps to a curved quadrilateral).
+That moves the contact towards or away from the neighbouring pass; at a point between them the
+ball's surface meets the normal line at an angle φ from its radius, so the material changes by at
+most the sideways deviation times tan φ. The caller passes tan φ (`lateral_weight`) and that share
+is added to each move's error.
+
 Vertices of iso-parameter passes sit on one lattice per parameter direction, uniform over the patch
 and fine enough for the patch's largest bending, so that neighbouring passes have their vertices side
 by side (the extra material of two lifted passes then lines up instead of smearing out).
@@ -85,23 +92,29 @@ def _vertices(uv: np.ndarray, kind: np.ndarray, lat_u: np.ndarray, lat_v: np.nda
     return np.array(pts), np.array(kinds, dtype=np.int8)
 
 
-def _deviation(centre: np.ndarray, probe_c: np.ndarray, probe_n: np.ndarray, probes: int) -> np.ndarray:
-    """Signed distance (m, probes) of probe centres above (+, towards the tool) the chord of their move."""
+def _deviation(centre: np.ndarray, probe_c: np.ndarray, probe_n: np.ndarray,
+               probes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (m, probes) of probe centres above (+, towards the tool) the chord of their move,
+    and their distance from it across the normal (sideways, ≥ 0)."""
     a, b = centre[:-1, None, :], centre[1:, None, :]
     ab = b - a
     t = np.clip(np.einsum("mpk,mpk->mp", probe_c - a, ab) / np.maximum(np.einsum("mpk,mpk->mp", ab, ab), 1e-300), 0, 1)
-    foot = a + t[..., None] * ab
-    return np.einsum("mpk,mpk->mp", probe_c - foot, probe_n)
+    d = probe_c - (a + t[..., None] * ab)
+    up = np.einsum("mpk,mpk->mp", d, probe_n)
+    return up, np.sqrt(np.maximum(np.einsum("mpk,mpk->mp", d, d) - up * up, 0.0))
 
 
 def discretize(patch: Patch, uv: np.ndarray, kind: np.ndarray, *, r: float, tol: float,
-               lat_u: np.ndarray, lat_v: np.ndarray, probes: int = 3) -> PassPoints:
+               lat_u: np.ndarray, lat_v: np.ndarray, probes: int = 3, lateral_weight: float = 0.0) -> PassPoints:
     """Cutter positions along a parameter path (uv float (m, 2), kind int (m − 1,)) with chord error ≤ tol.
 
     Each move is probed at `probes` interior points; moves whose error would exceed tol are split.
+    lateral_weight: mm of material per mm of sideways chord deviation (tan φ, see the module docstring).
     """
     if tol <= 0:
         raise ValueError(f"chord tolerance must be positive, got {tol} mm")
+    if not lateral_weight >= 0:
+        raise ValueError(f"lateral_weight must be a non-negative number, got {lateral_weight}")
     verts, kinds = _vertices(np.asarray(uv, float), np.asarray(kind), lat_u, lat_v)
     if len(verts) == 1:
         fr = frame(patch, verts[:, 0], verts[:, 1])
@@ -116,7 +129,7 @@ def discretize(patch: Patch, uv: np.ndarray, kind: np.ndarray, *, r: float, tol:
         lift = np.zeros(len(verts))
         for _ in range(4):  # lifting one end changes the chord: settle the lifts
             centre = centre0 + lift[:, None] * fr.n
-            dev = _deviation(centre, pc, pf.n, probes)
+            dev, _ = _deviation(centre, pc, pf.n, probes)
             dip = np.max(np.maximum(dev, 0.0), axis=1)
             if np.all(dip <= 1e-9):
                 break
@@ -125,9 +138,9 @@ def discretize(patch: Patch, uv: np.ndarray, kind: np.ndarray, *, r: float, tol:
             need[1:] = np.maximum(need[1:], dip)
             lift += need
         centre = centre0 + lift[:, None] * fr.n
-        dev = _deviation(centre, pc, pf.n, probes)
+        dev, side = _deviation(centre, pc, pf.n, probes)
         err = np.maximum(np.maximum(lift[:-1], lift[1:]), np.max(-np.minimum(dev, 0.0), axis=1))
-        err = np.maximum(err, np.max(np.maximum(dev, 0.0), axis=1))
+        err = np.maximum(err, np.max(np.maximum(dev, 0.0), axis=1)) + lateral_weight * np.max(side, axis=1)
         split = err > tol * (1 + 1e-9)
         if not np.any(split):
             return PassPoints(verts, fr.p, fr.n, centre, lift, kinds, err)

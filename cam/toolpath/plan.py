@@ -194,8 +194,8 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
     check_cancel = check_cancel or (lambda: None)
     h_s, tol = (1 - chord_fraction) * h - ROUNDING_MM, chord_fraction * h
     region = reachable_domain(patch, index, r=r, samples=samples_per_line)
-    whole, excluded = patch, 0
-    for attempt in range(MAX_REPLANS + 1):
+    whole, excluded, tightened, shrinks = patch, 0, 0, 0
+    while True:
         if region[0] >= region[1] or region[2] >= region[3]:
             raise Unreachable("the tool cannot reach the boundary of this patch without touching a neighbouring "
                               "surface anywhere within half its width" if not excluded else
@@ -206,20 +206,33 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
                          strategy=strategy, corner_mm=CORNER_SHARE * h_s)
         path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
                          spiral=strategy == "adaptive", check_cancel=check_cancel)
-        lat_u, lat_v = lattices(patch, r=r, tol=tol)
-        pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v)
+        spacing = _spacing(patch, grid.rects, grid.side_steps)
+        # A ball moved by δ moves the surface it cuts by at most δ; a normal line between passes meets
+        # a ball at φ from its radius, sin φ ≤ (farthest point from a contact) / r, which is half the
+        # largest interval beside a side and up to 0.586 of it in a corner pocket (0.6 taken). So a
+        # ball raised by δ leaves at most δ / cos φ more and one moved sideways at most δ·tan φ.
+        sin_phi = min(0.6 * spacing[1] / r, 1.0)
+        grow = 1 / np.sqrt(1 - sin_phi ** 2) if sin_phi < 0.95 else np.inf
+        # The lattice leaves a fifth of the chord share to sideways deviation, which splitting then removes
+        # (splitting a move does not lower the lifts its ends share with their other moves).
+        lat_u, lat_v = lattices(patch, r=r, tol=0.8 * tol)
+        pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v,
+                         lateral_weight=sin_phi * grow if np.isfinite(grow) else 3.0)
         runs, lifts, lift_uv, drop_uv = _clear_path(index, pts.centre, pts.uv, r, step=max(r / 4, 0.1))
         side = float(grid.side_scallop.max()) if grid.side_scallop.size else 0.0
         corner = float(path.corner_scallop.max()) if path.corner_scallop.size else 0.0
         chord = float(pts.chord_error.max()) if pts.chord_error.size else 0.0
-        spacing = _spacing(patch, grid.rects, grid.side_steps)
         bound = max(side, corner) + chord + ROUNDING_MM
-        # A ball raised by δ moves the surface it cuts by at most δ; along a normal line, which meets a
-        # ball of a neighbouring pass at φ from its radius with sin φ ≤ (largest interval) / 2r, the
-        # material left grows by at most δ / cos φ. Lifts that fit in what the target leaves over are
-        # kept and added to the bound; larger ones, and dropped positions, are cut out of the rectangle.
-        sin_phi = min(spacing[1] / (2 * r), 1.0)
-        grow = 1 / np.sqrt(1 - sin_phi ** 2) if sin_phi < 0.95 else np.inf
+        if bound > h:
+            # A corner the excursion cannot bring under the scallop share (a full excursion still
+            # leaves more than the side gaps): plan the whole patch a little tighter.
+            if tightened == 3:
+                raise NotPlannable(f"its corner pockets leave {bound:.4g} mm even on tighter rings; "
+                                   f"the target is {h:.4g} mm")
+            h_s, tightened = h_s - (bound - h) - 1e-3 * h, tightened + 1
+            continue
+        # Lifts that fit in what the target leaves over are kept and added to the bound (times 1 / cos φ);
+        # larger ones, and dropped positions, are cut out of the rectangle.
         big = lifts * grow > h - bound
         off = np.concatenate([lift_uv[big], drop_uv])
         if not len(off):
@@ -228,11 +241,12 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
         # Where the ball was lifted more or left out, it does not touch the patch as planned: the
         # rectangle gives up the strip holding those positions and is planned again, so the claim holds.
         excluded += len(off)
+        shrinks += 1
+        if shrinks > MAX_REPLANS:
+            raise Unreachable(f"the ball touches a neighbouring surface or the shank meets the part inside this "
+                              f"patch; after {MAX_REPLANS} smaller rectangles it still does")
         check_cancel()
         region = exclude_points(region, off)
-    else:
-        raise Unreachable(f"the ball touches a neighbouring surface or the shank meets the part inside this patch; "
-                          f"after {MAX_REPLANS} smaller rectangles it still does")
     z = np.array([0.0, 0.0, r])
     passes = [run - z for run in runs]
     length = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
@@ -240,7 +254,7 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
                      side_scallop_mm=side, corner_scallop_mm=corner, chord_error_mm=chord,
                      lift_mm=float(lifts.max(initial=0.0)), spacing_mm=spacing, rings=len(grid.rects),
                      excursions=path.excursions, path_length_mm=length, reach_fraction=reach_fraction,
-                     replans=attempt, excluded_points=excluded, strategy=strategy,
+                     replans=shrinks, excluded_points=excluded, strategy=strategy,
                      time_s=time.perf_counter() - t0)
 
 
@@ -272,12 +286,15 @@ def _restrict(surface, region):
 
 
 def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: int = 32,
-                     steps: int = 24) -> tuple[float, float, float, float]:
+                     steps: int = 24, rounds: int = 8) -> tuple[float, float, float, float]:
     """The parameter rectangle whose four boundary lines the tangent ball reaches everywhere.
 
-    At a hollow sharp edge the ball touching one patch cuts the next one: there the side moves inward
-    (bisection on the inset) until every contact point of its iso-line is reachable. What lies outside
-    is reported by verify as unreachable; the rings then run along the reachable boundary.
+    At a hollow sharp edge the ball touching one patch cuts the next one: there a side moves inward
+    (bisection on the inset, at most half the width) until every contact point of its iso-line is
+    reachable. Trouble near one side also blocks the two sides that run into it, so each round moves
+    only the failing side that gives up the least parameter area, and the others are tried again on
+    the smaller rectangle. What lies outside is reported by verify as unreachable; the rings then run
+    along the reachable boundary.
     """
     (u0, u1), (v0, v1) = patch.domain
     box = [u0, u1, v0, v1]
@@ -289,22 +306,34 @@ def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: in
         return bool(np.all(clearance(index, c, r) >= -GOUGE_TOL_MM) and np.all(fr.n[:, 2] > 1e-6)
                     and np.all(shank_clear(index, c, r)))
 
-    for side in range(4):
+    def inset(side: int) -> float | None:
+        """Smallest reachable inset of `side` as a fraction of the way to the opposite side; 0 when it holds."""
         along = "u" if side >= 2 else "v"  # sides 0, 1 are u = const lines (running along v)
         lo, hi = (box[2], box[3]) if along == "v" else (box[0], box[1])
         start, other = box[side], box[side ^ 1]
         if line_ok(along, start, lo, hi):
-            continue
+            return 0.0
         ts = np.linspace(0, 1, steps + 1)[1:] * 0.5
         good = next((t for t in ts if line_ok(along, start + t * (other - start), lo, hi)), None)
         if good is None:
-            return box_empty(box)
+            return None
         a, b = good - 0.5 / steps, good
         for _ in range(12):
             mid = 0.5 * (a + b)
             a, b = (a, mid) if line_ok(along, start + mid * (other - start), lo, hi) else (mid, b)
-        box[side] = start + b * (other - start)
-    return tuple(box)
+        return b
+
+    for _ in range(rounds):
+        moves = {side: inset(side) for side in range(4)}
+        if all(t == 0.0 for t in moves.values()):
+            return tuple(box)
+        width = {0: box[3] - box[2], 1: box[3] - box[2], 2: box[1] - box[0], 3: box[1] - box[0]}
+        loss = {side: t * abs(box[side ^ 1] - box[side]) * width[side] for side, t in moves.items() if t}
+        if not loss:
+            break
+        side = min(loss, key=loss.get)
+        box[side] = box[side] + moves[side] * (box[side ^ 1] - box[side])
+    return box_empty(box)
 
 
 def box_empty(box):

@@ -201,3 +201,16 @@ def test_spiral_turns_replace_the_diagonal_links_shorter_and_within_the_bound():
     uu, vv = np.meshgrid(np.linspace(0, 1, 61), np.linspace(0, 1, 61), indexing="ij")
     left = _material_left(cyl, np.stack([uu.ravel(), vv.ravel()], -1), contacts, 3.0)
     assert left.max() <= 0.144 * (1 + 1e-6)
+
+
+def test_a_wall_along_one_side_moves_only_that_side():
+    # A floor with a wall standing on its far edge: the ball cannot reach the floor within r of the wall.
+    # Every line along v runs into the wall too, but moving the far side alone frees them: the floor
+    # keeps its full width and gives up only the strip by the wall.
+    floor = analytic.plane(20.0, 16.0)
+    wall = analytic.fit_grid(lambda u, v: np.stack([20 * u, np.full_like(u, 16.0), 8 * v], -1), n=(4, 4))
+    plan = plan_job([1, 2], [floor, wall], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    pp = next(p for s in plan.setups for p in s.patches if p.patch == 1)
+    u0, u1, v0, v1 = pp.region
+    assert (u0, u1, v0) == (0.0, 1.0, 0.0)
+    assert (16 - 3.0) / 16 - 0.01 < v1 <= (16 - 3.0) / 16 + 1e-9  # r from the wall (tangent is allowed)
