@@ -285,31 +285,84 @@ def _restrict(surface, region):
     return SubSurface(surface, region)
 
 
+def _largest_rectangle(ok: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Largest all-True block of a bool (n, m) grid: inclusive (i0, i1, j0, j1), or None when none is True."""
+    n, m = ok.shape
+    heights = np.zeros(m, dtype=np.int64)
+    best, out = 0, None
+    for i in range(n):
+        heights = np.where(ok[i], heights + 1, 0)
+        stack: list[int] = []  # column indices with increasing heights
+        for j in range(m + 1):
+            hj = heights[j] if j < m else 0
+            while stack and heights[stack[-1]] >= hj:
+                top = stack.pop()
+                left = stack[-1] + 1 if stack else 0
+                area = int(heights[top]) * (j - left)
+                if area > best:
+                    best, out = area, (i - int(heights[top]) + 1, i, left, j - 1)
+            stack.append(j)
+    return out
+
+
 def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: int = 32,
                      steps: int = 24, rounds: int = 8) -> tuple[float, float, float, float]:
-    """The parameter rectangle whose four boundary lines the tangent ball reaches everywhere.
+    """A parameter rectangle whose four boundary lines the tangent ball reaches everywhere.
 
-    At a hollow sharp edge the ball touching one patch cuts the next one: there a side moves inward
-    (bisection on the inset, at most half the width) until every contact point of its iso-line is
-    reachable. Trouble near one side also blocks the two sides that run into it, so each round moves
-    only the failing side that gives up the least parameter area, and the others are tried again on
-    the smaller rectangle. What lies outside is reported by verify as unreachable; the rings then run
-    along the reachable boundary.
+    At a hollow sharp edge the ball touching one patch cuts the next one, and part of a patch may face
+    away from the tool. The rectangle starts as the largest block of a samples × samples grid of
+    contact points the ball reaches, each side then pushed outwards to where its iso-line stops being
+    reachable (bisection). Where a side's line is blocked between grid points it moves inward instead,
+    one side per round, the one that gives up the least area. What lies outside is reported by verify
+    as unreachable; the rings then run along the reachable boundary, and trouble left inside is found
+    when the passes are planned (see `plan_patch`).
     """
     (u0, u1), (v0, v1) = patch.domain
-    box = [u0, u1, v0, v1]
+    gu, gv = np.linspace(u0, u1, samples), np.linspace(v0, v1, samples)
+    uu, vv = np.meshgrid(gu, gv, indexing="ij")
+    fr = frame(patch, uu.ravel(), vv.ravel())
+    c = fr.p + r * fr.n
+    ok = np.all(np.isfinite(c), axis=1) & (fr.n[:, 2] > 1e-6)
+    ok[ok] = clearance(index, c[ok], r) >= -GOUGE_TOL_MM
+    ok[ok] = shank_clear(index, c[ok], r)
+    block = _largest_rectangle(ok.reshape(samples, samples))
+    if block is None:
+        return (u0, u0, v0, v0)
+    i0, i1, j0, j1 = block
+    box = [gu[i0], gu[i1], gv[j0], gv[j1]]
 
     def line_ok(along: str, fixed: float, lo: float, hi: float) -> bool:
         q = np.linspace(lo, hi, samples)
         fr = frame(patch, q, np.full_like(q, fixed)) if along == "u" else frame(patch, np.full_like(q, fixed), q)
         c = fr.p + r * fr.n
-        return bool(np.all(clearance(index, c, r) >= -GOUGE_TOL_MM) and np.all(fr.n[:, 2] > 1e-6)
-                    and np.all(shank_clear(index, c, r)))
+        return bool(np.all(np.isfinite(c)) and np.all(fr.n[:, 2] > 1e-6)
+                    and np.all(clearance(index, c, r) >= -GOUGE_TOL_MM) and np.all(shank_clear(index, c, r)))
+
+    def line(side: int) -> tuple[str, float, float]:
+        along = "u" if side >= 2 else "v"  # sides 0, 1 are u = const lines (running along v)
+        lo, hi = (box[2], box[3]) if along == "v" else (box[0], box[1])
+        return along, lo, hi
+
+    # Outwards: each side of the block up to the grid line beyond it, where its line stops being reachable.
+    limits = [u0, u1, v0, v1]
+    beyond = [gu[max(i0 - 1, 0)], gu[min(i1 + 1, samples - 1)], gv[max(j0 - 1, 0)], gv[min(j1 + 1, samples - 1)]]
+    for side in range(4):
+        along, lo, hi = line(side)
+        inner = box[side]
+        if inner == limits[side] or not line_ok(along, inner, lo, hi):
+            continue
+        outer = beyond[side]
+        if line_ok(along, outer, lo, hi):
+            box[side] = outer
+            continue
+        for _ in range(12):
+            mid = 0.5 * (inner + outer)
+            inner, outer = (mid, outer) if line_ok(along, mid, lo, hi) else (inner, mid)
+        box[side] = inner
 
     def inset(side: int) -> float | None:
         """Smallest reachable inset of `side` as a fraction of the way to the opposite side; 0 when it holds."""
-        along = "u" if side >= 2 else "v"  # sides 0, 1 are u = const lines (running along v)
-        lo, hi = (box[2], box[3]) if along == "v" else (box[0], box[1])
+        along, lo, hi = line(side)
         start, other = box[side], box[side ^ 1]
         if line_ok(along, start, lo, hi):
             return 0.0
@@ -323,7 +376,10 @@ def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: in
             a, b = (a, mid) if line_ok(along, start + mid * (other - start), lo, hi) else (mid, b)
         return b
 
+    # Inwards: a line blocked between grid points.
     for _ in range(rounds):
+        if box[0] >= box[1] or box[2] >= box[3]:
+            break
         moves = {side: inset(side) for side in range(4)}
         if all(t == 0.0 for t in moves.values()):
             return tuple(box)

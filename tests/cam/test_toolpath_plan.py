@@ -9,7 +9,7 @@ from cam.toolpath import analytic
 from cam.toolpath.access import Setup
 from cam.toolpath.geometry import Patch, frame, principal_curvatures
 from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
-from cam.toolpath.plan import exclude_points, plan_job
+from cam.toolpath.plan import _largest_rectangle, exclude_points, plan_job
 from cam.toolpath.rings import corner_scallop, ring_path
 
 EYE = [Setup(1, np.eye(3), np.zeros(3))]
@@ -214,3 +214,41 @@ def test_a_wall_along_one_side_moves_only_that_side():
     u0, u1, v0, v1 = pp.region
     assert (u0, u1, v0) == (0.0, 1.0, 0.0)
     assert (16 - 3.0) / 16 - 0.01 < v1 <= (16 - 3.0) / 16 + 1e-9  # r from the wall (tangent is allowed)
+
+
+def test_largest_rectangle_matches_brute_force():
+    rng = np.random.default_rng(7)
+
+    def brute(ok):
+        n, m = ok.shape
+        return max([(i1 - i0 + 1) * (j1 - j0 + 1) for i0 in range(n) for i1 in range(i0, n) for j0 in range(m)
+                    for j1 in range(j0, m) if ok[i0:i1 + 1, j0:j1 + 1].all()], default=0)
+
+    for _ in range(150):
+        ok = rng.random((rng.integers(1, 8), rng.integers(1, 8))) < 0.7
+        got = _largest_rectangle(ok)
+        area = 0 if got is None else (got[1] - got[0] + 1) * (got[3] - got[2] + 1)
+        assert area == brute(ok)
+        assert got is None or ok[got[0]:got[1] + 1, got[2]:got[3] + 1].all()
+
+
+def test_a_band_the_ball_cannot_reach_across_the_middle_keeps_the_larger_side():
+    # A floor with a thin rib standing across it at x = 8: no rectangle spanning the rib is reachable, and
+    # every side of the floor runs into it; the larger part beyond the rib (x > 8 + r) is planned.
+    floor = analytic.plane(20.0, 16.0)
+    rib = analytic.fit_grid(lambda u, v: np.stack([np.full_like(u, 8.0), 16 * u, 6 * v], -1), n=(4, 4))
+    plan = plan_job([1, 2], [floor, rib], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    pp = next(p for s in plan.setups for p in s.patches if p.patch == 1)
+    u0, u1, v0, v1 = pp.region
+    assert (u1, v0, v1) == (1.0, 0.0, 1.0) and (8 + 3.0) / 20 <= u0 < (8 + 3.0) / 20 + 0.01
+
+
+def test_move_clearance_finds_a_dip_between_its_samples():
+    # A straight move of the ball centre 0.01 mm too low over the apex of a dome: its ends are clear,
+    # and its samples 0.53 mm apart miss the apex; the refinement finds the exact -0.01 mm there.
+    from cam.toolpath.gouge import build_index, move_clearance
+
+    index = build_index([Patch(1, analytic.paraboloid(15.0, 16.0))], spacing_mm=0.5)
+    a, b = np.array([[-0.9, 0.0, 2.99]]), np.array([[0.7, 0.0, 2.99]])
+    worst, at = move_clearance(index, a, b, 3.0, step_mm=0.75)
+    assert worst[0] == pytest.approx(-0.01, abs=1e-7) and abs(at[0, 0]) < 1e-3
