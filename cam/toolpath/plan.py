@@ -197,8 +197,8 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
     whole, excluded, tightened, shrinks = patch, 0, 0, 0
     while True:
         if region[0] >= region[1] or region[2] >= region[3]:
-            raise Unreachable("the tool cannot reach the boundary of this patch without touching a neighbouring "
-                              "surface anywhere within half its width" if not excluded else
+            raise Unreachable("no rectangle of this patch can be reached: the ball would touch a neighbouring "
+                              "surface, its shank the part, or the surface faces away from the tool" if not excluded else
                               "the ball cannot follow this patch without touching a neighbouring surface or "
                               "the shank meeting the part")
         patch = Patch(whole.id, _restrict(whole.surface, region), whole.sign) if region != _box(whole) else whole
