@@ -231,7 +231,8 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
     next ring's v0 line and steps along that line to its start, so ring k + 1's first side simply
     reaches back to u0: the start corner then has no pocket (the square there lies between the v0 lines
     of ring k and k + 1, whose gap the side check already holds over all of [u0, u1]) and each ring
-    saves the diagonal link.
+    saves the diagonal link. The turn leaves a pocket of its own (`_spiral_turn`), bounded and given an
+    excursion like the other corners.
     """
     points: list[np.ndarray] = []
     kinds: list[int] = []
