@@ -207,8 +207,8 @@ def move_clearance(index: SurfaceIndex, a: np.ndarray, b: np.ndarray, r: float, 
     at[seg[first]] = x[first]
     if not len(a):
         return worst, at
-    # Successive parabolic steps inside the bracket (lowest sample and its neighbours), a golden step
-    # where the parabola is flat or points outside: the clearance along a move is smooth there.
+    # Successive parabolic steps inside the bracket (lowest sample and its neighbours), halving the wider
+    # half where the parabola is flat or points outside: the clearance along a move is smooth there.
     i_best = np.zeros(len(a), dtype=np.int64)
     i_best[seg[first]] = first
     start = np.concatenate([[0], np.cumsum(n + 1)[:-1]])

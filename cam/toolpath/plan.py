@@ -197,10 +197,10 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
     whole, excluded, tightened, shrinks = patch, 0, 0, 0
     while True:
         if region[0] >= region[1] or region[2] >= region[3]:
-            raise Unreachable("no rectangle of this patch can be reached: the ball would touch a neighbouring "
-                              "surface, its shank the part, or the surface faces away from the tool" if not excluded else
-                              "the ball cannot follow this patch without touching a neighbouring surface or "
-                              "the shank meeting the part")
+            raise Unreachable("the ball cannot follow this patch without touching a neighbouring surface or "
+                              "the shank meeting the part" if excluded else
+                              "no rectangle of this patch can be reached: the ball would touch a neighbouring "
+                              "surface, its shank the part, or the surface faces away from the tool")
         patch = Patch(whole.id, _restrict(whole.surface, region), whole.sign) if region != _box(whole) else whole
         grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
                          strategy=strategy, corner_mm=CORNER_SHARE * h_s)
@@ -318,14 +318,19 @@ def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: in
     when the passes are planned (see `plan_patch`).
     """
     (u0, u1), (v0, v1) = patch.domain
+
+    def reached(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Whether the tangent ball at each contact (u, v) faces up, clears every surface and its shank."""
+        fr = frame(patch, u, v)
+        c = fr.p + r * fr.n
+        ok = np.all(np.isfinite(c), axis=1) & (fr.n[:, 2] > 1e-6)
+        ok[ok] = clearance(index, c[ok], r) >= -GOUGE_TOL_MM
+        ok[ok] = shank_clear(index, c[ok], r)
+        return ok
+
     gu, gv = np.linspace(u0, u1, samples), np.linspace(v0, v1, samples)
     uu, vv = np.meshgrid(gu, gv, indexing="ij")
-    fr = frame(patch, uu.ravel(), vv.ravel())
-    c = fr.p + r * fr.n
-    ok = np.all(np.isfinite(c), axis=1) & (fr.n[:, 2] > 1e-6)
-    ok[ok] = clearance(index, c[ok], r) >= -GOUGE_TOL_MM
-    ok[ok] = shank_clear(index, c[ok], r)
-    block = _largest_rectangle(ok.reshape(samples, samples))
+    block = _largest_rectangle(reached(uu.ravel(), vv.ravel()).reshape(samples, samples))
     if block is None:
         return (u0, u0, v0, v0)
     i0, i1, j0, j1 = block
@@ -333,10 +338,7 @@ def reachable_domain(patch: Patch, index: SurfaceIndex, *, r: float, samples: in
 
     def line_ok(along: str, fixed: float, lo: float, hi: float) -> bool:
         q = np.linspace(lo, hi, samples)
-        fr = frame(patch, q, np.full_like(q, fixed)) if along == "u" else frame(patch, np.full_like(q, fixed), q)
-        c = fr.p + r * fr.n
-        return bool(np.all(np.isfinite(c)) and np.all(fr.n[:, 2] > 1e-6)
-                    and np.all(clearance(index, c, r) >= -GOUGE_TOL_MM) and np.all(shank_clear(index, c, r)))
+        return bool(np.all(reached(q, np.full_like(q, fixed)) if along == "u" else reached(np.full_like(q, fixed), q)))
 
     def line(side: int) -> tuple[str, float, float]:
         along = "u" if side >= 2 else "v"  # sides 0, 1 are u = const lines (running along v)

@@ -54,10 +54,6 @@ def _nearest_on_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) ->
     return d[rows, j], foot[rows, j]
 
 
-def _dist_to_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) -> np.ndarray:
-    return _nearest_on_segments(x, seg_a, seg_b)[0]
-
-
 def _paths_near_corner(patch, outer, inner, corner, extra):
     """3D segments (a, b) of the contact paths around one corner: both rings' legs plus extra param segments."""
     P, Q = _corner_point(outer, corner), _corner_point(inner, corner)
@@ -140,13 +136,13 @@ def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: 
     g = np.linspace(0.0, 1.0, 33)
     uu, vv = np.meshgrid(lo_uv[0] + g * (hi_uv[0] - lo_uv[0]), lo_uv[1] + g * (hi_uv[1] - lo_uv[1]), indexing="ij")
     x = patch.surface.evaluate(uu.ravel(), vv.ravel())
-    rho_base = _dist_to_segments(x, seg_a, seg_b)
+    rho_base, _ = _nearest_on_segments(x, seg_a, seg_b)
     _, kmax = principal_curvatures(frame(patch, uu.ravel(), vv.ravel()))
     kmax = float(np.max(kmax))
 
     def pocket(lam: float) -> float:
         e = patch.surface.evaluate(*_segment_points(Q, Q + lam * (P - Q), 9).T)
-        rho = np.minimum(rho_base, _dist_to_segments(x, e[:-1], e[1:]))
+        rho = np.minimum(rho_base, _nearest_on_segments(x, e[:-1], e[1:])[0])
         return float(scallop_from_arc_gap(2 * rho.max(), r, kmax))
 
     lo, hi = 0.0, 1.0
