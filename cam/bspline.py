@@ -107,6 +107,13 @@ def clamped_uniform_knots(count: int, degree: int = 3) -> np.ndarray:
     return np.concatenate([np.zeros(degree), inner, np.ones(degree)])
 
 
+def c0_knots(knots: np.ndarray, degree: int) -> np.ndarray:
+    """Interior knot values of multiplicity >= degree, sorted: where the curve or surface is only C0
+    (a border that turns a corner; its derivatives jump there)."""
+    values, counts = np.unique(np.asarray(knots, dtype=np.float64)[degree + 1:-degree - 1], return_counts=True)
+    return values[counts >= degree]
+
+
 def surface_from_json(data: dict[str, Any]) -> BSplineSurface:
     """Inverse of `BSplineSurface.to_json` (reads one entry of `surfaces.json`)."""
     return make_bspline_surface(data["control_points"], data["knots_u"], data["knots_v"],

@@ -102,3 +102,26 @@ def test_closest_points_are_exact_against_brute_force():
     np.testing.assert_allclose(np.einsum("nk,nkd->nd", b, V[F[f]]), q, atol=1e-12)
     with pytest.raises(ValueError, match="triangle indices"):
         mesh_index(V, F + len(V))
+
+
+def test_foot_points_cross_a_c0_line():
+    # A sheet whose u = 1 iso-line is a C0 line: its v = 0 border runs along x, then turns up
+    # at 76 degrees (a border round a corner); its v = 1 border stays straight. Each piece is
+    # bilinear, so its net is the map at the Greville abscissae. Points on it must get distance
+    # 0 and their own foot, whichever piece Newton starts in, and without a start.
+    from cam.fit.param import distance_to_surface, project_points
+
+    ku = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2.0])
+    kv = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
+    S, T = np.meshgrid([0, 1 / 3, 2 / 3, 1, 4 / 3, 5 / 3, 2], [0, 1 / 3, 2 / 3, 1], indexing="ij")
+    bottom = 4.0 * np.maximum(S - 1.0, 0.0)
+    cp = np.stack([S, bottom * (1 - T) + 2 * T, 0.3 * S * T], -1)
+    rng = np.random.default_rng(3)
+    u = np.concatenate([rng.uniform(1.0, 1.2, 50), rng.uniform(0.8, 1.0, 50)])
+    v = rng.uniform(0.2, 0.8, 100)
+    on = evaluate_surface(ku, kv, cp, u, v, order=0)[(0, 0)]
+    for start_u in (np.where(u > 1.0, 0.9, 1.1), np.ones(100)):  # in the other piece, on the line
+        fu, fv, d = project_points(ku, kv, cp, on, start_u, v)
+        assert d.max() < 1e-9
+        np.testing.assert_allclose(np.stack([fu, fv], 1), np.stack([u, v], 1), atol=1e-6)
+    assert distance_to_surface(ku, kv, cp, on)[2].max() < 1e-9
