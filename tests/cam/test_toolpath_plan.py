@@ -252,3 +252,28 @@ def test_move_clearance_finds_a_dip_between_its_samples():
     a, b = np.array([[-0.9, 0.0, 2.99]]), np.array([[0.7, 0.0, 2.99]])
     worst, at = move_clearance(index, a, b, 3.0, step_mm=0.75)
     assert worst[0] == pytest.approx(-0.01, abs=1e-7) and abs(at[0, 0]) < 1e-3
+
+
+def test_closest_points_cross_a_c0_line():
+    # A sheet whose u = 1/2 iso-line is a C0 line (its v = 0 border turns up by 76 degrees there;
+    # each half is bilinear, so its net is the map at the Greville abscissae). Points above it by
+    # known heights must get exactly those distances whichever side Newton starts on.
+    from cam.bspline import make_bspline_surface
+    from cam.toolpath.gouge import _project
+
+    ku = np.array([0, 0, 0, 0, 0.5, 0.5, 0.5, 1, 1, 1, 1.0])
+    kv = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
+    S, T = np.meshgrid([0, 1 / 3, 2 / 3, 1, 4 / 3, 5 / 3, 2], [0, 1 / 3, 2 / 3, 1], indexing="ij")
+    bottom = 4.0 * np.maximum(S - 1.0, 0.0)
+    sheet = Patch(1, make_bspline_surface(np.stack([S, bottom * (1 - T) + 2 * T, 0.3 * S * T], -1), ku, kv))
+    rng = np.random.default_rng(3)
+    u = np.concatenate([rng.uniform(0.5, 0.6, 50), rng.uniform(0.4, 0.5, 50)])
+    v = rng.uniform(0.2, 0.8, 100)
+    on = sheet.surface.evaluate(u, v)
+    n = np.cross(sheet.surface.evaluate(u, v, du=1), sheet.surface.evaluate(u, v, dv=1))
+    lift = rng.uniform(0.0, 0.05, 100)
+    x = on + lift[:, None] * n / np.linalg.norm(n, axis=1)[:, None]
+    for start_u in (np.where(u > 0.5, 0.45, 0.55), np.full(100, 0.5)):  # in the other piece, on the line
+        uv, foot = _project(sheet, x, np.stack([start_u, v], -1))
+        np.testing.assert_allclose(np.linalg.norm(foot - x, axis=1), lift, atol=1e-9)
+
