@@ -34,10 +34,11 @@ SIDES = ("v0", "u1", "v1", "u0")  # bottom, right, top, left of the parameter sq
 class TooConcave(ValueError):
     """The patch holds a concave radius of curvature not larger than the tool radius."""
 
-    def __init__(self, message: str, *, radius_mm: float, point: np.ndarray) -> None:
+    def __init__(self, message: str, *, radius_mm: float, point: np.ndarray, uv: np.ndarray | None = None) -> None:
         super().__init__(message)
         self.radius_mm = radius_mm
         self.point = point
+        self.uv = np.zeros((0, 2)) if uv is None else uv  # float (k, 2): every sample found too concave
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,8 @@ def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -
     if np.any(bad):
         i = np.unravel_index(np.argmin(kmin), kmin.shape)
         radius = -1.0 / kmin[i]
-        raise TooConcave(concave_message(radius, tool_radius_mm, fr.p[i]), radius_mm=float(radius), point=fr.p[i])
+        raise TooConcave(concave_message(radius, tool_radius_mm, fr.p[i]), radius_mm=float(radius), point=fr.p[i],
+                         uv=np.stack([uu[bad], vv[bad]], -1))
 
 
 def concave_message(radius_mm: float, tool_radius_mm: float, point: np.ndarray) -> str:

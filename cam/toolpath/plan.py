@@ -202,8 +202,20 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
                               "no rectangle of this patch can be reached: the ball would touch a neighbouring "
                               "surface, its shank the part, or the surface faces away from the tool")
         patch = Patch(whole.id, _restrict(whole.surface, region), whole.sign) if region != _box(whole) else whole
-        grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
-                         strategy=strategy, corner_mm=CORNER_SHARE * h_s)
+        try:
+            grid = ring_grid(patch, tool_radius_mm=r, scallop_mm=h_s, samples_per_line=samples_per_line,
+                             strategy=strategy, corner_mm=CORNER_SHARE * h_s)
+        except TooConcave as exc:
+            # A hollow between the samples `finishable_region` looked at: the rectangle gives it up
+            # like a lifted position; a hollow it cannot get rid of is reported as it was found.
+            shrinks += 1
+            if shrinks > MAX_REPLANS or not len(exc.uv):
+                raise
+            smaller = exclude_points(region, exc.uv)
+            if smaller[0] >= smaller[1] or smaller[2] >= smaller[3]:
+                raise
+            region = smaller
+            continue
         path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
                          spiral=strategy == "adaptive", check_cancel=check_cancel)
         spacing = _spacing(patch, grid.rects, grid.side_steps)

@@ -9,7 +9,7 @@ from cam.toolpath import analytic
 from cam.toolpath.access import Setup
 from cam.toolpath.geometry import Patch, frame, principal_curvatures
 from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
-from cam.toolpath.plan import _largest_rectangle, exclude_points, plan_job
+from cam.toolpath.plan import _largest_rectangle, exclude_points, plan_job, plan_patch
 from cam.toolpath.rings import corner_scallop, ring_path
 
 EYE = [Setup(1, np.eye(3), np.zeros(3))]
@@ -277,3 +277,23 @@ def test_closest_points_cross_a_c0_line():
         uv, foot = _project(sheet, x, np.stack([start_u, v], -1))
         np.testing.assert_allclose(np.linalg.norm(foot - x, axis=1), lift, atol=1e-9)
 
+
+def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
+    # A 20 x 16 mm plate with a shallow trough along x = 1.875 (on a line of ring_grid's concavity
+    # samples), concave radius just under the 3 mm ball at its bottom: the ball reaches every
+    # contact (no lift), the concavity check finds the hollow, and the plan gives up the strip
+    # holding it and finishes the rest, instead of losing the patch.
+    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+    from cam.toolpath.gouge import build_index
+
+    nu, nv = 161, 9
+    ku, kv = clamped_uniform_knots(nu), clamped_uniform_knots(nv)
+    gu = np.array([ku[i + 1:i + 4].mean() for i in range(nu)])  # Greville abscissae
+    gv = np.array([kv[j + 1:j + 4].mean() for j in range(nv)])
+    x, y = np.meshgrid(20 * gu, 16 * gv, indexing="ij")
+    z = -0.11 * np.exp(-((x - 1.875) / 0.8) ** 2)  # radius 0.8² / 0.22 = 2.91 mm at the bottom
+    plate = Patch(1, make_bspline_surface(np.stack([x, y, z], -1), ku, kv))
+    pp = plan_patch(plate, build_index([plate], spacing_mm=0.5), r=3.0, h=0.16)
+    u0, u1, v0, v1 = pp.region
+    assert 1.875 / 20 < u0 < 0.25 and (u1, v0, v1) == (1.0, 0.0, 1.0)
+    assert pp.certified_scallop_mm <= 0.16 and pp.replans >= 1
