@@ -50,9 +50,9 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
     least). length_mm scales the bending term to the part. deviation: maps curve points (k, 3)
     to their distance (k,) from what the curve must stay on (the mesh); without it the
     distance to the data at their parameters is used. Each refinement round, data points
-    farther than `tolerance_mm` from it are moved by `project` (points (k, 3) -> closest points
-    on it), spans that stay farther are halved (knot insertion, down to `min_span`), and the
-    curve is refitted.
+    farther than `tolerance_mm` from it are replaced by `project` (parameters (k,) -> points
+    (k, 3) on it where the curve should pass at them), spans that stay farther are halved (knot
+    insertion, down to `min_span`), and the curve is refitted.
     """
     P = np.asarray(points, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
@@ -85,13 +85,19 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
             break
         moved = False
         if deviation is not None and project is not None and len(P):
-            # Data off the mesh (a patch fit's border past where it had samples) is no data for the curve.
+            # Data off the mesh (a patch fit's border past where it had samples) is no data for the
+            # curve. Its replacement keeps the parameter: the closest point on the mesh instead
+            # would shift it along the curve, and data out of order make the curve zig-zag.
             off = np.asarray(deviation(P)) > tolerance_mm
             if off.any():
                 P = P.copy()
-                P[off] = project(P[off])
+                P[off] = project(t[off])
                 moved = True
-        new = split_spans(k, where[err > tolerance_mm], degree=degree, min_span=min_span)
+        # Spans that miss their own data need knots too: a stiff span that slides along the mesh
+        # (no deviation there) bends its neighbours off it through the curve's continuity.
+        missed = t[np.linalg.norm(evaluate_curve(k, cp, t, degree=degree)[0] - P, axis=1) > tolerance_mm] \
+            if len(P) else np.zeros(0)
+        new = split_spans(k, np.concatenate([where[err > tolerance_mm], missed]), degree=degree, min_span=min_span)
         if new.size == k.size and not moved:
             break
         previous = (k, cp, worst)

@@ -88,7 +88,8 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                 smoothing_mm2: float = 1e-4,
                 smoothing_floor: float = 1e-6, param_weight: float = 0.01, normal_weight_mm: float = 0.02,
                 anchor_weight: float = 1.0, iterations: int = 8, max_refinements: int = 3,
-                min_span: float = 0.125, on_progress: Callable[[float, str], None] | None = None) -> FitResult:
+                min_span: float = 0.125, kink_angle_deg: float = 40.0,
+                on_progress: Callable[[float, str], None] | None = None) -> FitResult:
     """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
 
     vertices float64 (k, 3) mm: quad-mesh vertices; grids: per patch int (R + 1, C + 1) vertex ids
@@ -101,8 +102,9 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     10). max_samples_per_quad: the fit uses at most this many samples per patch quad on average
     (an evenly strided subset; a fine reconstructed mesh has ~100), None: all of them; the
     reported errors are measured on every sample either way. min_span: refinement halves knot spans,
-    never below min_span quads. on_progress (fraction, message) is called between
-    patches (it may raise to stop the fit).
+    never below min_span quads. kink_angle_deg: where a patch side turns by more than this at a
+    vertex (it runs round a corner of the part), its surface gets a C0 knot line there.
+    on_progress (fraction, message) is called between patches (it may raise to stop the fit).
     """
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance_mm must be positive, got {tolerance_mm}")
@@ -134,6 +136,10 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases, snap_radius=snap_radius)
     anchors = [grid_anchors(V, g, index, spacing=knot_spacing, positions=positions) for g in grids]
     sharp_side = {(k, name): _is_sharp(side_vertices(g, name), sharp) for k, g in enumerate(grids) for name in SIDES}
+    # A side that turns a corner needs a C0 knot line there in the free fit already: a smooth
+    # surface cuts the corner, and the boundary curves are fitted to where the free fits' borders lie.
+    kinks = {(k, name): _kinks(positions[side_vertices(g, name)], kink_angle_deg).astype(np.float64)
+             for k, g in enumerate(grids) for name in SIDES}
     lengths = [_lengths(V, g) for g in grids]
     shape = [(g.shape[0] - 1, g.shape[1] - 1) for g in grids]
     n = len(grids)
@@ -148,7 +154,10 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
 
     def free_fit(k: int, start: SurfaceFit | None) -> SurfaceFit:
         R, C = shape[k]
-        kw = dict(knots_u=lattice_knots(0, R, knot_spacing), knots_v=lattice_knots(0, C, knot_spacing))
+        kw = dict(knots_u=merge_knots(lattice_knots(0, R, knot_spacing), np.repeat(kinks[(k, "v0")], 3),
+                                      np.repeat(kinks[(k, "v1")], 3)),
+                  knots_v=merge_knots(lattice_knots(0, C, knot_spacing), np.repeat(kinks[(k, "u0")], 3),
+                                      np.repeat(kinks[(k, "u1")], 3)))
         if start is not None:
             kw = dict(knots_u=start.knots_u, knots_v=start.knots_v, control_points=start.control_points)
         pts, nrm, u, v = data(k)
@@ -165,7 +174,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         free[k] = free_fit(k, free[k])
     report(0.4, "fitting the shared boundary curves")
     curves, curve_err = _fit_curves(layout, grids, shape, free, positions, index, creases, sharp, knot_spacing,
-                                    tolerance_mm, max_refinements, min_span)
+                                    tolerance_mm, max_refinements, min_span, kink_angle_deg)
     final: list[SurfaceFit] = []
     rounds: list[int] = []
     for k in range(n):
@@ -235,11 +244,14 @@ def _reassign(P, owner, su, sv, fits, layout: Layout, tol: float) -> set[int]:
 
 
 def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, sharp, spacing: float, tol: float,
-                max_refinements: int, min_span: float) -> tuple[list[CurveFit], list[float]]:
+                max_refinements: int, min_span: float, kink_angle_deg: float) -> tuple[list[CurveFit], list[float]]:
     """Fit each boundary curve once, through its junction points.
 
-    Along a crease the data are the crease itself (points between the curve's vertices moved
-    onto it); elsewhere, where the patches' own fits put their borders.
+    A curve is fitted piecewise and joined C0 where its vertices turn by more than
+    `kink_angle_deg` (a patch side that runs round a corner of the part: one cubic cannot turn
+    a corner without leaving the mesh). Along its sharp edges the data are the crease itself
+    (points between the curve's vertices moved onto it); along the others, where the patches'
+    own fits put their borders.
     """
     ends = {spec.vertices[0] for spec in layout.curves} | {spec.vertices[-1] for spec in layout.curves}
     samples: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in layout.curves]
@@ -257,20 +269,58 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
     for c, spec in enumerate(layout.curves):
         verts = np.asarray(spec.vertices)
         pts = positions[verts]
-        length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
-        if creases is not None and _is_sharp(verts, sharp):
-            q, h = _crease_samples(pts, spec.start, creases, index)
-        else:
-            q = np.concatenate([s[0] for s in samples[c]])
-            h = np.concatenate([s[1] for s in samples[c]])
-        cons = [(float(spec.start + i), pts[i]) for i, vid in enumerate(spec.vertices) if vid in ends]
-        fit = fit_curve(q, h, knots=lattice_knots(spec.start, spec.end, spacing), constraints=cons,
-                        length_mm=length, tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
-                        deviation=lambda p: closest_points(index, p)[1],
-                        project=lambda p: closest_points(index, p)[0])
-        fits.append(fit)
-        errs.append(fit.max_error)
+        cuts = [0, *_kinks(pts, kink_angle_deg).tolist(), len(verts) - 1]
+        q_free = np.concatenate([s[0] for s in samples[c]])
+        h_free = np.concatenate([s[1] for s in samples[c]])
+        parts = []
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            lo, hi = spec.start + a, spec.start + b
+            seg = pts[a:b + 1]
+            q, h = _curve_data(verts[a:b + 1], seg, lo, q_free, h_free, sharp if creases is not None else set(),
+                               creases, index)
+            length = float(np.linalg.norm(np.diff(seg, axis=0), axis=1).sum())
+            cons = [(float(lo + i), seg[i]) for i in range(b - a + 1)
+                    if i in (0, b - a) or int(verts[a + i]) in ends]
+
+            def on_mesh(t: np.ndarray, seg=seg, lo=lo) -> np.ndarray:
+                # Where the border's vertices say the curve runs: their polyline, onto the mesh.
+                return closest_points(index, _polyline_at(seg, t - lo))[0]
+
+            parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, spacing), constraints=cons, length_mm=length,
+                                   tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
+                                   deviation=lambda p: closest_points(index, p)[1], project=on_mesh))
+        knots, cp = join_curves([(f.knots, f.control_points) for f in parts])
+        fits.append(CurveFit(knots=knots, control_points=cp, max_error=max(f.max_error for f in parts)))
+        errs.append(fits[-1].max_error)
     return fits, errs
+
+
+def _curve_data(verts: np.ndarray, pts: np.ndarray, start: int, q_free: np.ndarray, h_free: np.ndarray,
+                sharp: set, creases, index) -> tuple[np.ndarray, np.ndarray]:
+    """Data for the curve through vertices `verts` (positions `pts`, parameters start, start + 1, ...):
+    along each run of sharp edges the crease, along the rest the patches' own borders (q_free at
+    parameters h_free)."""
+    on = np.array([(min(a, b), max(a, b)) in sharp for a, b in zip(verts[:-1].tolist(), verts[1:].tolist())])
+    cuts = [0, *(np.flatnonzero(on[1:] != on[:-1]) + 1).tolist(), len(on)]
+    qs, hs = [], []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        lo, hi = start + a, start + b
+        if on[a]:
+            q, h = _crease_samples(pts[a:b + 1], lo, creases, index)
+        else:
+            inside = (h_free >= lo) & (h_free <= hi)
+            q, h = q_free[inside], h_free[inside]
+        qs.append(q)
+        hs.append(h)
+    return np.concatenate(qs), np.concatenate(hs)
+
+
+def _kinks(pts: np.ndarray, angle_deg: float) -> np.ndarray:
+    """Interior indices of a polyline (m, 3) where its direction turns by more than `angle_deg`."""
+    d = np.diff(pts, axis=0)
+    d /= np.maximum(np.linalg.norm(d, axis=1), 1e-300)[:, None]
+    cos = np.einsum("ij,ij->i", d[1:], d[:-1])
+    return np.flatnonzero(cos < np.cos(np.radians(angle_deg))) + 1
 
 
 def _is_sharp(verts: np.ndarray, sharp: set) -> bool:
@@ -279,6 +329,13 @@ def _is_sharp(verts: np.ndarray, sharp: set) -> bool:
         return False
     hits = sum((min(a, b), max(a, b)) in sharp for a, b in zip(verts[:-1].tolist(), verts[1:].tolist()))
     return 2 * hits >= len(verts) - 1
+
+
+def _polyline_at(pts: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Points (n, 3) on the polyline through `pts` (m, 3) at parameters t (n,), one unit per segment."""
+    i = np.clip(np.floor(t).astype(np.int64), 0, len(pts) - 2)
+    s = (t - i)[:, None]
+    return (1.0 - s) * pts[i] + s * pts[i + 1]
 
 
 def _crease_samples(pts: np.ndarray, start: int, creases, index, per_edge: int = 8

@@ -23,8 +23,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
-from cam.bspline import find_folds, make_bspline_surface
-from cam.fit.basis import surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
+from cam.bspline import c0_knots, find_folds, make_bspline_surface
+from cam.fit.basis import evaluate_surface, span_params, surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
 from cam.fit.param import Anchors, foot_frames, project_points
 
 __all__ = ["SurfaceFit", "fit_surface", "sdm_weights"]
@@ -71,7 +71,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 fixed: np.ndarray | None = None, anchors: Anchors | None = None,
                 lengths_mm: tuple[float, float] = (1.0, 1.0), tolerance_mm: float = 0.032,
                 smoothing_mm2: float = 1e-4, smoothing_decay: float = 0.1, smoothing_floor: float = 1e-6,
-                normal_weight_mm: float = 0.02, anchor_weight: float = 1.0, param_weight: float = 0.01,
+                normal_weight_mm: float = 0.02, kink_weight_mm: float = 1.0, anchor_weight: float = 1.0,
+                param_weight: float = 0.01,
                 pull_weight: float = 0.3, pull_sides: tuple[bool, bool, bool, bool] = (True, True, True, True),
                 clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
                 degree: tuple[int, int] = (3, 3)) -> SurfaceFit:
@@ -89,8 +90,10 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     down to `smoothing_floor` times it, so early steps are stiff and the converged surface is not
     biased by it; `warm` (a start that already fits, e.g. after knot insertion) starts at the floor.
     normal_weight_mm: weight of the normal term (an angle error of ε rad costs as much as a
-    distance of ε · normal_weight_mm). clamped_samples: "pull" draws the border out towards
-    samples beyond it, with weight `pull_weight`, across the sides flagged in `pull_sides` (u = u0,
+    distance of ε · normal_weight_mm). kink_weight_mm: the same for the two sides of a C0 knot
+    line (a border that turns a corner) against their shared normal, so the line is a kink of the
+    parameters only, not a crease of the surface. clamped_samples: "pull" draws the border out
+    towards samples beyond it, with weight `pull_weight`, across the sides flagged in `pull_sides` (u = u0,
     u = u1, v = v0, v = v1; a patch fitted on its own, not across a crease, where samples beyond
     belong to the other face); "drop" ignores them (a border that is a shared curve).
     Stops when the largest distance is within tolerance and no longer improving, when it stops
@@ -172,11 +175,41 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             for du, dv, tangent in ((1, 0, frame.su), (0, 1, frame.sv)):
                 w = normal_weight_mm**2 * keep / np.maximum(np.einsum("ij,ij->i", tangent, tangent), 1e-24)
                 rows.append((surface_rows(ku, kv, u, v, degree=degree, du=du, dv=dv), [(Nm, w, np.zeros(len(P)))]))
+        if kink_weight_mm > 0:
+            rows += _kink_rows(ku, kv, cp, degree, kink_weight_mm)
         if anchors is not None:
             af = foot_frames(ku, kv, cp, anchors.u, anchors.v, degree=degree)
             rows.append(_anchor_rows(anchors, ku, kv, degree, anchor_weight, param_weight, af.t1, af.t2, []))
         cp = system.solve(rows, lam, cp)
     return best
+
+
+def _kink_rows(ku, kv, cp, degree, weight_mm: float, per_span: int = 4) -> list:
+    """Rows that hold both sides of every C0 knot line tangent to one plane (G1 across it).
+
+    Along a line u = c, S_u just before and at c (the two pieces' own derivatives) should be
+    orthogonal to the mean of the two pieces' normals there; likewise across v = c. Weighted so
+    that an angle error of ε costs as much as a distance of ε · weight_mm over all the samples.
+    """
+    out = []
+    for axis, (knots, deg) in enumerate(((ku, degree[0]), (kv, degree[1]))):
+        lines = c0_knots(knots, deg)
+        if not lines.size:
+            continue
+        other = span_params(kv if axis == 0 else ku, per_span)
+        c = np.repeat(lines, other.size)
+        t = np.tile(other, lines.size)
+        before = np.nextafter(c, -np.inf)
+        sides = [(before, t), (c, t)] if axis == 0 else [(t, before), (t, c)]
+        ders = [evaluate_surface(ku, kv, cp, a, b, degree=degree, order=1) for a, b in sides]
+        normals = [np.cross(d[(1, 0)], d[(0, 1)]) for d in ders]
+        n = sum(x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-300) for x in normals)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        key, du, dv = ((1, 0), 1, 0) if axis == 0 else ((0, 1), 0, 1)
+        for (a, b), d in zip(sides, ders):
+            w = weight_mm**2 / (2 * c.size) / np.maximum(np.einsum("ij,ij->i", d[key], d[key]), 1e-24)
+            out.append((surface_rows(ku, kv, a, b, degree=degree, du=du, dv=dv), [(n, w, np.zeros(c.size))]))
+    return out
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -74,6 +74,43 @@ def test_a_t_junction_is_c0_on_both_pieces():
     assert max(p.max_error_mm for p in result.patches) < 1e-5
 
 
+def _bent(s, t):
+    """A paraboloid parameterised with a bend: seen from above its t = const lines turn at s = 4
+    (t = 0 by 63 degrees, t = 3, a shared border in the test, by 45 degrees, t = 6 not at all)."""
+    b = 2.0 * np.maximum(s - 4.0, 0.0)
+    x, y = s, b + (14.0 - b) * t / 6.0
+    return np.stack([x, y, 0.004 * (x**2 + y**2)], axis=-1)
+
+
+def test_a_side_that_turns_a_corner_gets_a_c0_knot_line_there():
+    V, ids, MV, MF = case(_bent, (8, 6), (8, 6))
+    grids = [ids[:, :4], ids[:, 3:]]  # they share the t = 3 line, which turns 45 degrees at s = 4
+    result = fit_patches(V, grids, MV, MF)
+    assert result.max_gap_mm <= 1e-9
+    for p in result.patches:
+        knots = p.surface.knots_u * 8  # grid-index units
+        assert np.count_nonzero(knots == 4.0) == 3  # C0 at the turn, one knot line across the surface
+    # The shared border goes through the corner vertex exactly, both surfaces alike.
+    corner = V[ids[4, 3]]
+    np.testing.assert_allclose(result.patches[0].surface.evaluate(np.array([0.5]), np.array([1.0]))[0], corner,
+                               atol=1e-9)
+    np.testing.assert_allclose(result.patches[1].surface.evaluate(np.array([0.5]), np.array([0.0]))[0], corner,
+                               atol=1e-9)
+    t = np.linspace(0, 8, 321)
+    assert _border_gap(result, grids, 0, "v1", 1, "v0", t, t) <= 1e-9
+    # The knot line bends the parameters, not the surface: its two sides share the tangent plane
+    # (measured away from the outer border, whose fixed boundary curve sets the tangents along it;
+    # without the G1 rows of the fit the sides meet at up to 0.64 degrees here).
+    v = np.linspace(0.5, 0.95, 10)
+    for p in result.patches:
+        normals = [p.surface.normals(np.full(10, u), v) for u in (np.nextafter(0.5, 0), 0.5)]
+        assert np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", *normals), -1, 1))).max() < 0.2
+    # Without the knot line the border rounds the corner, missing it by more than the tolerance.
+    smooth = fit_patches(V, grids, MV, MF, kink_angle_deg=180.0)
+    border = smooth.patches[0].surface.evaluate(np.linspace(0, 1, 4001), np.ones(4001))
+    assert np.linalg.norm(border - corner, axis=1).min() > smooth.tolerance_mm
+
+
 def test_a_crease_inside_a_patch_is_reported_not_accepted():
     V, ids, MV, MF = case(ridge(10.0, 0.8), (20, 10), (10, 5))
     result = fit_patches(V, [ids], MV, MF, tolerance_mm=0.005, max_refinements=2)
