@@ -193,8 +193,11 @@ def main(argv: list[str] | None = None) -> int:
         png = f"fit-{r['name']}.png"
         render(out / png, r["doc"], distances, f"{r['name']}: surface to mesh (mm)", 2 * r["doc"]["tolerance_mm"])
         lines += ["", f"![{r['name']}]({png})"]
-    (out / "fit.md").write_text("\n".join(lines) + "\n")
-    print((out / "fit.md").read_text())
+    md = out / "fit.md"
+    # A hand-written "## Notes" section (analysis of a run) survives a rerun of the tables.
+    notes = md.read_text().partition("\n## Notes")[2] if md.exists() else ""
+    md.write_text("\n".join(lines) + "\n" + (f"\n## Notes{notes}" if notes else ""))
+    print(md.read_text())
     return 0
 
 
