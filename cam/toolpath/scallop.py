@@ -68,9 +68,11 @@ def half_chord(h: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np
         a = np.sqrt(q) / (2 * (1 + h * k))
         # In a hollow the centres lie on a circle of radius (R − r); no wider chord exists, and a target the
         # hollow cannot even reach is met by any spacing up to it.
+        # (q < 0 happens only there: a hollow so close to the ball that no spacing leaves h.)
         kc = k / (1 + r * k)
-        a = np.where(kc < 0, np.minimum(a, 1 / np.abs(np.where(kc < 0, kc, -1.0))), a)
-    return np.where(fits_concave(k, r) & (q >= 0), a, np.nan)
+        hollow = kc < 0
+        a = np.where(hollow, np.minimum(np.where(q >= 0, a, np.inf), 1 / np.abs(np.where(hollow, kc, -1.0))), a)
+    return np.where(fits_concave(k, r) & ((q >= 0) | hollow), a, np.nan)
 
 
 def scallop_from_half_chord(a: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np.ndarray:
@@ -86,7 +88,7 @@ def scallop_from_half_chord(a: float | np.ndarray, r: float, kappa: float | np.n
         kc = np.where(fits, k / (1 + r * k), 0.0)
         a2 = a * a
         flat = a2 / (r + np.sqrt(r * r - a2))
-        bend = a2 * kc / (1 + np.sqrt(1 - a2 * kc * kc))
+        bend = a2 * kc / (1 + np.sqrt(np.maximum(1 - a2 * kc * kc, 0.0)))  # round-off at a = 1 / |κ_c|
         h = flat - bend
     h = np.where(a >= r, np.inf, h)
     return np.where(fits, h, np.nan)

@@ -67,3 +67,16 @@ def test_tool_too_large_for_hollow():
     assert np.isnan(half_chord(0.16, R_TOOL, -1 / 2.5))
     with pytest.raises(ValueError, match="scallop heights"):
         half_chord(0.0, R_TOOL, 0.0)
+
+
+def test_a_hollow_barely_wider_than_the_ball_takes_any_spacing_up_to_its_centre_circle():
+    # R = 3.07 mm, r = 3 mm: the centres lie on a circle of radius 0.07 mm and no two balls on it
+    # leave 0.144 mm (the deepest cusp, balls on opposite ends, is the brute-force value below).
+    k = -1 / 3.07
+    a = float(half_chord(0.144, R_TOOL, k))
+    assert a == pytest.approx(0.07, rel=1e-12)
+    deepest = float(scallop_from_half_chord(a, R_TOOL, k))
+    # The brute force is taken a hair inside the circle (at its edge arcsin's argument may round past 1),
+    # where the cusp moves with the square root of that hair: 1e-12 of a moves it by about 1e-6.
+    assert deepest == pytest.approx(brute_scallop(0.07 * (1 - 1e-12), R_TOOL, k), rel=1e-5) and deepest < 0.144
+    assert scallop_from_arc_gap(arc_gap(0.144, R_TOOL, k), R_TOOL, k) == pytest.approx(deepest, rel=1e-9)
