@@ -41,7 +41,9 @@ class PatchPlan:
     """One machined patch. passes: tool tips float64 (n_i, 3) per pass in cutting order (machine frame);
     centres: the matching ball centres; certified_scallop_mm: the bound the planner certifies on `region`;
     replans: how often the rectangle was shrunk because the ball had to be lifted off the patch or left
-    out (excluded_points such positions in all); lift_mm: the largest lift kept (its effect is in the bound)."""
+    out (excluded_points such positions in all) or a hollow tighter than the ball turned up (hollows: what
+    was found, as `TooConcave` words it); touched: whether the reach check or lifted and left-out
+    positions took part of the patch; lift_mm: the largest lift kept (its effect is in the bound)."""
 
     patch: int
     region: tuple[float, float, float, float]
@@ -61,6 +63,8 @@ class PatchPlan:
     excluded_points: int
     strategy: str
     time_s: float
+    hollows: tuple[str, ...] = ()
+    touched: bool = True
 
 
 @dataclass
@@ -194,7 +198,8 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
     check_cancel = check_cancel or (lambda: None)
     h_s, tol = (1 - chord_fraction) * h - ROUNDING_MM, chord_fraction * h
     region = reachable_domain(patch, index, r=r, samples=samples_per_line)
-    whole, excluded, tightened, shrinks = patch, 0, 0, 0
+    whole, excluded, tightened, shrinks, hollows = patch, 0, 0, 0, []
+    touched = region != _box(patch)  # the reach check already took some of it
     while True:
         if region[0] >= region[1] or region[2] >= region[3]:
             raise Unreachable("the ball cannot follow this patch without touching a neighbouring surface or "
@@ -215,6 +220,7 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
             if smaller[0] >= smaller[1] or smaller[2] >= smaller[3]:
                 raise
             region = smaller
+            hollows.append(str(exc))
             continue
         path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
                          spiral=strategy == "adaptive", check_cancel=check_cancel)
@@ -267,12 +273,14 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
                      lift_mm=float(lifts.max(initial=0.0)), spacing_mm=spacing, rings=len(grid.rects),
                      excursions=path.excursions, path_length_mm=length, reach_fraction=reach_fraction,
                      replans=shrinks, excluded_points=excluded, strategy=strategy,
-                     time_s=time.perf_counter() - t0)
+                     time_s=time.perf_counter() - t0, hollows=tuple(dict.fromkeys(hollows)),
+                     touched=touched or excluded > 0)
 
 
-def _claim(surface, planned: tuple[float, float, float, float], trimmed: Region | None) -> dict | None:
+def _claim(surface, plan: PatchPlan, trimmed: Region | None) -> dict | None:
     """What a patch planned on a sub-rectangle claims: the rectangle, its share of the patch's area and
     why the rest is left (None when the whole patch is planned). Verify holds the program to this claim."""
+    planned = plan.region
     (u0, u1), (v0, v1) = surface.domain
     full = (u0, u1, v0, v1)
     scale = max(u1 - u0, v1 - v0)
@@ -281,7 +289,9 @@ def _claim(surface, planned: tuple[float, float, float, float], trimmed: Region 
     reasons = [trimmed.reason] if trimmed is not None else []
     inside = trimmed.box if trimmed is not None else full
     if not np.allclose(planned, inside, rtol=0, atol=1e-12 * scale):
-        reasons.append("beyond it the ball would touch a neighbouring surface or its shank the part")
+        reasons += list(plan.hollows)
+        if plan.touched or not plan.hollows:
+            reasons.append("beyond it the ball would touch a neighbouring surface or its shank the part")
     return {"region": [float(x) for x in planned], "kept": area_share(surface, planned), "reason": "; ".join(reasons)}
 
 
@@ -475,7 +485,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
             except (TooConcave, Unreachable, NotPlannable) as exc:
                 unmachined.append({"patch": p.id, "reason": str(exc)})
             else:
-                claim = _claim(whole[ids.index(p.id)], plans[-1].region, trimmed.get(p.id))
+                claim = _claim(whole[ids.index(p.id)], plans[-1], trimmed.get(p.id))
                 if claim is not None:
                     partial.append({"patch": p.id, **claim})
             done += 1

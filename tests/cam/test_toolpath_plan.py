@@ -297,3 +297,9 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     u0, u1, v0, v1 = pp.region
     assert 1.875 / 20 < u0 < 0.25 and (u1, v0, v1) == (1.0, 0.0, 1.0)
     assert pp.certified_scallop_mm <= 0.16 and pp.replans >= 1
+    # The claim says why the rest is left: the hollow, not a neighbour the ball would touch.
+    from cam.toolpath.plan import _claim
+
+    assert pp.hollows and not pp.touched
+    reason = _claim(plate.surface, pp, None)["reason"]
+    assert reason.startswith("concave radius of curvature 2.9") and "neighbouring" not in reason
