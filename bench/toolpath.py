@@ -376,7 +376,9 @@ def write_report(done: dict) -> None:
                      f"| {row['gouge']:.1e} | {row['length']:.0f} | {row['air']:.0f} | {row['retracts']} |")
     lines.append("")
     out = RESULTS / "toolpath.md"
-    out.write_text("\n".join(lines) + "\n")
+    # A hand-written "## Notes" section (analysis of a run) survives a rerun of the tables.
+    notes = out.read_text().partition("\n## Notes")[2] if out.exists() else ""
+    out.write_text("\n".join(lines) + "\n" + (f"\n## Notes{notes}" if notes else ""))
     print(out)
 
 
