@@ -88,7 +88,9 @@ def scallop_from_half_chord(a: float | np.ndarray, r: float, kappa: float | np.n
         kc = np.where(fits, k / (1 + r * k), 0.0)
         a2 = a * a
         flat = a2 / (r + np.sqrt(r * r - a2))
-        bend = a2 * kc / (1 + np.sqrt(np.maximum(1 - a2 * kc * kc, 0.0)))  # round-off at a = 1 / |κ_c|
+        # Round-off at the centre circle's diameter (a = 1 / |κ_c|) counts as on it; past it stays NaN.
+        inside = 1 - a2 * kc * kc
+        bend = a2 * kc / (1 + np.sqrt(np.where(inside > -1e-9, np.maximum(inside, 0.0), inside)))
         h = flat - bend
     h = np.where(a >= r, np.inf, h)
     return np.where(fits, h, np.nan)

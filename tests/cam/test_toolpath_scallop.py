@@ -80,3 +80,5 @@ def test_a_hollow_barely_wider_than_the_ball_takes_any_spacing_up_to_its_centre_
     # where the cusp moves with the square root of that hair: 1e-12 of a moves it by about 1e-6.
     assert deepest == pytest.approx(brute_scallop(0.07 * (1 - 1e-12), R_TOOL, k), rel=1e-5) and deepest < 0.144
     assert scallop_from_arc_gap(arc_gap(0.144, R_TOOL, k), R_TOOL, k) == pytest.approx(deepest, rel=1e-9)
+    # Past the centre circle's diameter the section model does not hold: no value is made up there.
+    assert np.isnan(scallop_from_half_chord(0.08, R_TOOL, k))
