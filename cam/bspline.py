@@ -114,6 +114,63 @@ def c0_knots(knots: np.ndarray, degree: int) -> np.ndarray:
     return values[counts >= degree]
 
 
+def c0_pieces(knots: np.ndarray, degree: int, lo: float, hi: float) -> np.ndarray:
+    """lo, the C0 lines strictly inside (lo, hi), hi: the ends of the pieces of [lo, hi], sorted."""
+    inner = c0_knots(knots, degree)
+    return np.concatenate([[lo], inner[(inner > lo) & (inner < hi)], [hi]])
+
+
+def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.ndarray, *, rounds: int = 2
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Foot points by a Newton method run piece by piece between C0 lines.
+
+    At a C0 line the derivatives jump and Newton can settle on the line (or on a border of the
+    wrong piece) short of the foot. So each run stays inside one piece, whose derivatives hold up
+    to its edge; the method also runs from the start in each piece next to the start's, and a foot
+    that ends on an edge of its piece is tried again from the pieces next to it (up to `rounds`
+    times), the nearest foot kept.
+    newton(rows int (k,), uv (k, 2), lo (k, 2), hi (k, 2)) -> (uv (k, 2), distance (k,)) runs the
+    method for those rows inside the boxes lo..hi; pieces_u/v from `c0_pieces`; uv (n, 2) the starts.
+    Returns uv (n, 2) and distance (n,).
+    """
+    bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)
+
+    def box(iu, iv):
+        # A piece that ends at a C0 line is approached from below, so the span evaluated there (and
+        # its derivatives) are the piece's own; the position is the same up to round-off.
+        hi_u = np.where(iu + 2 < bu.size, np.nextafter(bu[iu + 1], -np.inf), bu[iu + 1])
+        hi_v = np.where(iv + 2 < bv.size, np.nextafter(bv[iv + 1], -np.inf), bv[iv + 1])
+        return np.stack([bu[iu], bv[iv]], -1), np.stack([hi_u, hi_v], -1)
+
+    start = np.asarray(uv, dtype=np.float64)
+    iu = np.clip(np.searchsorted(bu, start[:, 0], side="right") - 1, 0, bu.size - 2)
+    iv = np.clip(np.searchsorted(bv, start[:, 1], side="right") - 1, 0, bv.size - 2)
+    uv, d = newton(np.arange(len(start)), start, *box(iu, iv))
+    if bu.size == 2 and bv.size == 2:
+        return uv, d
+    # First from the start in every piece next to the start's (the start's piece may hold only a local
+    # minimum inside it), then from feet left on an edge of their piece into the piece across.
+    todo, origin = np.arange(len(start)), start
+    for _ in range(1 + rounds):
+        found = False
+        for su, sv in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            ju, jv = iu[todo] + su, iv[todo] + sv
+            ok = (ju >= 0) & (ju <= bu.size - 2) & (jv >= 0) & (jv <= bv.size - 2)
+            rows, ju, jv = todo[ok], ju[ok], jv[ok]
+            if not rows.size:
+                continue
+            q, dq = newton(rows, origin[rows], *box(ju, jv))
+            better = dq < d[rows]
+            rows = rows[better]
+            uv[rows], d[rows], iu[rows], iv[rows] = q[better], dq[better], ju[better], jv[better]
+            found |= bool(better.any())
+        if not found:
+            break
+        lo, hi = box(iu, iv)
+        todo, origin = np.flatnonzero(np.any((uv <= lo) | (uv >= hi), axis=1)), uv.copy()
+    return uv, d
+
+
 def surface_from_json(data: dict[str, Any]) -> BSplineSurface:
     """Inverse of `BSplineSurface.to_json` (reads one entry of `surfaces.json`)."""
     return make_bspline_surface(data["control_points"], data["knots_u"], data["knots_v"],

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import c0_knots
+from cam.bspline import c0_pieces, foot_in_pieces
 from cam.fit.basis import evaluate_surface, span_params
 from cam.closest import closest_points, mesh_index
 
@@ -109,64 +109,26 @@ def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.
     """Foot points of `points` (n, 3) on the surface, by Newton's method from (u, v), kept in the domain.
 
     Returns u, v float64 (n,) and distance float64 (n,) mm. A step that does not shorten the
-    distance is halved (twice), then dropped, so the distance never grows. A knot of full
-    multiplicity (a C0 line, where a border turns a corner) splits the domain into pieces:
-    Newton runs inside one piece, whose derivatives hold up to its edge, and a foot that ends on
-    such a line is tried again from the piece across it. Newton also starts in the pieces next
-    to the start's piece.
+    distance is halved (twice), then dropped, so the distance never grows. Across C0 knot lines
+    see `cam.bspline.foot_in_pieces`.
     """
     p, q = degree
     ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
     P = np.asarray(points, dtype=np.float64)
-    bu, bv = _breaks(ku, p), _breaks(kv, q)
-    u = np.clip(np.asarray(u, dtype=np.float64).copy(), bu[0], bu[-1])
-    v = np.clip(np.asarray(v, dtype=np.float64).copy(), bv[0], bv[-1])
-    iu = np.clip(np.searchsorted(bu, u, side="right") - 1, 0, bu.size - 2)
-    iv = np.clip(np.searchsorted(bv, v, side="right") - 1, 0, bv.size - 2)
-    u0, v0 = u.copy(), v.copy()
-    u, v, d = _newton(ku, kv, control_points, P, u, v, iu, iv, bu, bv, degree, iterations)
-    # Near a C0 line the start's piece may hold only a local minimum (its border nearest to a
-    # point that lies across the line): Newton also runs in each neighbouring piece.
-    for su, sv in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        ju, jv = iu + su, iv + sv
-        todo = np.flatnonzero((ju >= 0) & (ju <= bu.size - 2) & (jv >= 0) & (jv <= bv.size - 2))
-        if not todo.size:
-            continue
-        nu, nv, nd = _newton(ku, kv, control_points, P[todo], u0[todo], v0[todo], ju[todo], jv[todo], bu, bv,
-                             degree, iterations)
-        better = nd < d[todo]
-        idx = todo[better]
-        u[idx], v[idx], d[idx] = nu[better], nv[better], nd[better]
-        iu[idx], iv[idx] = ju[todo][better], jv[todo][better]
-    for _hop in range(2):
-        # Feet stuck on a C0 line: start again just across it, keep whichever is closer.
-        top_u, top_v = np.nextafter(bu[iu + 1], -np.inf), np.nextafter(bv[iv + 1], -np.inf)
-        du = np.where((u <= bu[iu]) & (iu > 0), -1, np.where((u >= top_u) & (iu < bu.size - 2), 1, 0))
-        dv = np.where((v <= bv[iv]) & (iv > 0), -1, np.where((v >= top_v) & (iv < bv.size - 2), 1, 0))
-        todo = np.flatnonzero((du != 0) | (dv != 0))
-        if not todo.size:
-            break
-        ju, jv = iu[todo] + du[todo], iv[todo] + dv[todo]
-        nu, nv, nd = _newton(ku, kv, control_points, P[todo], u[todo], v[todo], ju, jv, bu, bv, degree, iterations)
-        better = nd < d[todo]
-        idx = todo[better]
-        u[idx], v[idx], d[idx], iu[idx], iv[idx] = nu[better], nv[better], nd[better], ju[better], jv[better]
-        if not better.any():
-            break
-    return u, v, d
+    start = np.stack([np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)], -1).reshape(-1, 2)
+
+    def newton(rows, uv, lo, hi):
+        fu, fv, d = _newton(ku, kv, control_points, P[rows], uv[:, 0], uv[:, 1], lo, hi, degree, iterations)
+        return np.stack([fu, fv], -1), d
+
+    uv, d = foot_in_pieces(newton, c0_pieces(ku, p, ku[p], ku[-p - 1]), c0_pieces(kv, q, kv[q], kv[-q - 1]),
+                           np.clip(start, [ku[p], kv[q]], [ku[-p - 1], kv[-q - 1]]))
+    return uv[:, 0], uv[:, 1], d
 
 
-def _breaks(knots: np.ndarray, degree: int) -> np.ndarray:
-    """The domain's ends and its C0 lines between them, sorted."""
-    return np.concatenate([[knots[degree]], c0_knots(knots, degree), [knots[-degree - 1]]])
-
-
-def _newton(ku, kv, control_points, P, u, v, iu, iv, bu, bv, degree, iterations):
-    """Newton steps for foot points, each kept inside its piece [bu[iu], bu[iu + 1]] x [bv[iv], bv[iv + 1]]."""
-    # The upper edge of a piece that ends at a C0 line is approached from below, so that the
-    # span there (and the derivatives) are the piece's own; the position is the same up to round-off.
-    lo_u, hi_u = bu[iu], np.where(iu + 2 < bu.size, np.nextafter(bu[iu + 1], -np.inf), bu[iu + 1])
-    lo_v, hi_v = bv[iv], np.where(iv + 2 < bv.size, np.nextafter(bv[iv + 1], -np.inf), bv[iv + 1])
+def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
+    """Newton steps for foot points, each kept inside its box lo..hi (n, 2)."""
+    lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
     u, v = np.clip(u, lo_u, hi_u), np.clip(v, lo_v, hi_v)
 
     def dist(uu, vv, idx=slice(None)):

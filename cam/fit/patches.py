@@ -300,7 +300,7 @@ def _curve_data(verts: np.ndarray, pts: np.ndarray, start: int, q_free: np.ndarr
     """Data for the curve through vertices `verts` (positions `pts`, parameters start, start + 1, ...):
     along each run of sharp edges the crease, along the rest the patches' own borders (q_free at
     parameters h_free)."""
-    on = np.array([(min(a, b), max(a, b)) in sharp for a, b in zip(verts[:-1].tolist(), verts[1:].tolist())])
+    on = _sharp_edges(verts, sharp)
     cuts = [0, *(np.flatnonzero(on[1:] != on[:-1]) + 1).tolist(), len(on)]
     qs, hs = [], []
     for a, b in zip(cuts[:-1], cuts[1:]):
@@ -323,12 +323,17 @@ def _kinks(pts: np.ndarray, angle_deg: float) -> np.ndarray:
     return np.flatnonzero(cos < np.cos(np.radians(angle_deg))) + 1
 
 
+def _sharp_edges(verts: np.ndarray, sharp: set) -> np.ndarray:
+    """bool (m - 1,): which edges of a vertex polyline (m,) are sharp edges."""
+    return np.array([(min(a, b), max(a, b)) in sharp for a, b in zip(verts[:-1].tolist(), verts[1:].tolist())],
+                    dtype=bool)
+
+
 def _is_sharp(verts: np.ndarray, sharp: set) -> bool:
     """Whether most edges of a vertex polyline are sharp edges."""
     if not sharp or len(verts) < 2:
         return False
-    hits = sum((min(a, b), max(a, b)) in sharp for a, b in zip(verts[:-1].tolist(), verts[1:].tolist()))
-    return 2 * hits >= len(verts) - 1
+    return 2 * int(_sharp_edges(verts, sharp).sum()) >= len(verts) - 1
 
 
 def _polyline_at(pts: np.ndarray, t: np.ndarray) -> np.ndarray:

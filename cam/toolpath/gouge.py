@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cam.bspline import c0_knots
+from cam.bspline import c0_pieces, foot_in_pieces
 from cam.toolpath.geometry import Patch
 
 __all__ = [
@@ -73,52 +73,25 @@ def build_index(patches: list[Patch], *, spacing_mm: float) -> SurfaceIndex:
 
 
 def _project(patch: Patch, x: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The foot point of x (n, 3) on the patch from uv (n, 2): (uv, foot).
-
-    A knot of full multiplicity is a C0 line (a border that turns a corner): Newton's
-    derivatives jump there and it can settle on the line short of the foot. The domain is cut
-    into pieces at those lines; Newton runs in the start's piece and in each piece next to it,
-    and the nearest foot wins.
-    """
+    """The foot point of x (n, 3) on the patch from uv (n, 2): (uv, foot); across C0 knot lines see
+    `cam.bspline.foot_in_pieces`."""
     s = patch.surface
     (u0, u1), (v0, v1) = patch.domain
     base = getattr(s, "base", s)
-    bu = _pieces(base.knots_u, base.degree[0], u0, u1)
-    bv = _pieces(base.knots_v, base.degree[1], v0, v1)
-    iu = np.clip(np.searchsorted(bu, uv[:, 0], side="right") - 1, 0, bu.size - 2)
-    iv = np.clip(np.searchsorted(bv, uv[:, 1], side="right") - 1, 0, bv.size - 2)
-    best_uv, best_foot, best_d = None, None, None
-    for su, sv in ((0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)):
-        ju, jv = iu + su, iv + sv
-        ok = (ju >= 0) & (ju <= bu.size - 2) & (jv >= 0) & (jv <= bv.size - 2)
-        if not ok.any():
-            continue
-        ju, jv = np.clip(ju, 0, bu.size - 2), np.clip(jv, 0, bv.size - 2)
-        # A piece that ends at a C0 line is evaluated from its own side of it.
-        hi_u = np.where(ju + 2 < bu.size, np.nextafter(bu[ju + 1], -np.inf), bu[ju + 1])
-        hi_v = np.where(jv + 2 < bv.size, np.nextafter(bv[jv + 1], -np.inf), bv[jv + 1])
-        lo, hi = np.stack([bu[ju], bv[jv]], -1), np.stack([hi_u, hi_v], -1)
-        q, f = _project_box(s, x, uv, lo, hi)
-        d = np.where(ok, np.linalg.norm(f - x, axis=1), np.inf)
-        if best_d is None:
-            best_uv, best_foot, best_d = q, f, d
-            if bu.size == 2 and bv.size == 2:
-                break
-            continue
-        better = d < best_d
-        best_uv[better], best_foot[better], best_d[better] = q[better], f[better], d[better]
-    return best_uv, best_foot
 
+    def newton(rows, start, lo, hi):
+        q, f = _project_box(s, x[rows], start, lo, hi)
+        return q, np.linalg.norm(f - x[rows], axis=1)
 
-def _pieces(knots: np.ndarray, degree: int, lo: float, hi: float) -> np.ndarray:
-    """lo, the C0 lines strictly inside (lo, hi), hi."""
-    inner = c0_knots(knots, degree)
-    return np.concatenate([[lo], inner[(inner > lo) & (inner < hi)], [hi]])
+    uv, _ = foot_in_pieces(newton, c0_pieces(base.knots_u, base.degree[0], u0, u1),
+                           c0_pieces(base.knots_v, base.degree[1], v0, v1), uv)
+    return uv, s.evaluate(uv[:, 0], uv[:, 1])
 
 
 def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarray, iterations: int = 12
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Projected Newton for the foot point of x (n, 3) on surface s from uv (n, 2), inside the boxes lo..hi (n, 2)."""
+    """Projected Newton for the foot point of x (n, 3) on surface s from uv (n, 2), inside the boxes
+    lo..hi (n, 2): (uv, foot)."""
     uv = np.clip(uv, lo, hi)
     for _ in range(iterations):
         u, v = uv[:, 0], uv[:, 1]
