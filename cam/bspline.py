@@ -120,8 +120,62 @@ def c0_pieces(knots: np.ndarray, degree: int, lo: float, hi: float) -> np.ndarra
     return np.concatenate([[lo], inner[(inner > lo) & (inner < hi)], [hi]])
 
 
-def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.ndarray, *, rounds: int = 2
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def piece_distance_bound(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
+                         pieces_u: np.ndarray, pieces_v: np.ndarray, points: np.ndarray, *,
+                         degree: tuple[int, int] = (3, 3)):
+    """A lower bound on the distance from points to each piece between C0 lines, for `foot_in_pieces`.
+
+    A knot span of a B-spline surface lies in the convex hull of the (p+1) x (q+1) control points
+    that act on it, so the distance to the box around them bounds the distance to the span from
+    below, and the nearest box of a piece's spans bounds the piece. It lets `foot_in_pieces` skip
+    the Newton runs in neighbouring pieces that cannot hold a nearer foot, which is nearly all of them.
+    knots, control_points (nu, nv, 3) and degree as in `BSplineSurface`; pieces_u/v from `c0_pieces`;
+    points float64 (n, 3) mm. Returns bound(rows int (k,), iu (k,), iv (k,)) -> float64 (k,) mm: the
+    bound for points[rows] and the pieces (iu, iv).
+    """
+    p, q = degree
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    cp = np.asarray(control_points, dtype=np.float64)
+    P = np.asarray(points, dtype=np.float64)
+    su = np.flatnonzero(ku[p:cp.shape[0]] < ku[p + 1:cp.shape[0] + 1]) + p  # spans of positive length
+    sv = np.flatnonzero(kv[q:cp.shape[1]] < kv[q + 1:cp.shape[1] + 1]) + q
+    bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)
+    # The piece a span belongs to: the one its midpoint falls in.
+    piece_u = np.clip(np.searchsorted(bu, 0.5 * (ku[su] + ku[su + 1]), side="right") - 1, 0, bu.size - 2)
+    piece_v = np.clip(np.searchsorted(bv, 0.5 * (kv[sv] + kv[sv + 1]), side="right") - 1, 0, bv.size - 2)
+    boxes = {}
+    for a in range(bu.size - 1):
+        for b in range(bv.size - 1):
+            lo, hi = [], []
+            for i in su[piece_u == a]:
+                block = cp[i - p:i + 1]
+                for j in sv[piece_v == b]:
+                    net = block[:, j - q:j + 1].reshape(-1, 3)
+                    lo.append(net.min(axis=0))
+                    hi.append(net.max(axis=0))
+            boxes[a, b] = (np.array(lo).reshape(-1, 3), np.array(hi).reshape(-1, 3))
+
+    def bound(rows: np.ndarray, iu: np.ndarray, iv: np.ndarray) -> np.ndarray:
+        out = np.full(len(rows), np.inf)
+        key = np.asarray(iu) * (bv.size - 1) + np.asarray(iv)
+        for k in np.unique(key):
+            lo, hi = boxes[divmod(int(k), bv.size - 1)]
+            if not len(lo):
+                continue
+            at = np.flatnonzero(key == k)
+            step = max(1, 2_000_000 // len(lo))  # points per chunk: about 50 MB of gaps
+            for c in range(0, at.size, step):
+                sel = at[c:c + step]
+                x = P[rows[sel]][:, None, :]
+                gap = np.maximum(np.maximum(lo - x, x - hi), 0.0)
+                out[sel] = np.sqrt(np.min(np.einsum("kmi,kmi->km", gap, gap), axis=1))
+        return out
+
+    return bound
+
+
+def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.ndarray, *, rounds: int = 2,
+                   lower_bound=None) -> tuple[np.ndarray, np.ndarray]:
     """Foot points by a Newton method run piece by piece between C0 lines.
 
     At a C0 line the derivatives jump and Newton can settle on the line (or on a border of the
@@ -131,6 +185,8 @@ def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.nd
     times), the nearest foot kept.
     newton(rows int (k,), uv (k, 2), lo (k, 2), hi (k, 2)) -> (uv (k, 2), distance (k,)) runs the
     method for those rows inside the boxes lo..hi; pieces_u/v from `c0_pieces`; uv (n, 2) the starts.
+    lower_bound(rows, iu, iv) -> (k,), from `piece_distance_bound`: a piece whose bound is not below
+    the distance found so far is not tried (the answer is the same, found with fewer runs).
     Returns uv (n, 2) and distance (n,).
     """
     bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)
@@ -157,6 +213,9 @@ def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.nd
             ju, jv = iu[todo] + su, iv[todo] + sv
             ok = (ju >= 0) & (ju <= bu.size - 2) & (jv >= 0) & (jv <= bv.size - 2)
             rows, ju, jv = todo[ok], ju[ok], jv[ok]
+            if lower_bound is not None and rows.size:
+                near = lower_bound(rows, ju, jv) < d[rows]
+                rows, ju, jv = rows[near], ju[near], jv[near]
             if not rows.size:
                 continue
             q, dq = newton(rows, origin[rows], *box(ju, jv))

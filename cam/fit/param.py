@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import c0_pieces, foot_in_pieces
+from cam.bspline import c0_pieces, foot_in_pieces, piece_distance_bound
 from cam.fit.basis import evaluate_surface, span_params
 from cam.closest import closest_points, mesh_index
 
@@ -121,23 +121,35 @@ def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.
         fu, fv, d = _newton(ku, kv, control_points, P[rows], uv[:, 0], uv[:, 1], lo, hi, degree, iterations)
         return np.stack([fu, fv], -1), d
 
-    uv, d = foot_in_pieces(newton, c0_pieces(ku, p, ku[p], ku[-p - 1]), c0_pieces(kv, q, kv[q], kv[-q - 1]),
-                           np.clip(start, [ku[p], kv[q]], [ku[-p - 1], kv[-q - 1]]))
+    pieces_u, pieces_v = c0_pieces(ku, p, ku[p], ku[-p - 1]), c0_pieces(kv, q, kv[q], kv[-q - 1])
+    bound = None
+    if pieces_u.size > 2 or pieces_v.size > 2:
+        bound = piece_distance_bound(ku, kv, control_points, pieces_u, pieces_v, P, degree=degree)
+    uv, d = foot_in_pieces(newton, pieces_u, pieces_v, np.clip(start, [ku[p], kv[q]], [ku[-p - 1], kv[-q - 1]]),
+                           lower_bound=bound)
     return uv[:, 0], uv[:, 1], d
 
 
 def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
-    """Newton steps for foot points, each kept inside its box lo..hi (n, 2)."""
-    lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
-    u, v = np.clip(u, lo_u, hi_u), np.clip(v, lo_v, hi_v)
+    """Newton steps for foot points, each kept inside its box lo..hi (n, 2).
 
-    def dist(uu, vv, idx=slice(None)):
+    A row stops once its step moves it less than 1e-10 (or not at all): most converge in two or
+    three steps, and the rest keep iterating alone."""
+    lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
+    u, v = np.clip(u, lo_u, hi_u).copy(), np.clip(v, lo_v, hi_v).copy()
+    dist = np.full(u.size, np.nan)
+
+    def distance(uu, vv, idx):
         S = evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
         return np.linalg.norm(S - P[idx], axis=1)
 
+    active = np.arange(u.size)
     for _ in range(iterations):
-        d = evaluate_surface(ku, kv, control_points, u, v, degree=degree, order=2)
-        r = d[(0, 0)] - P
+        if not active.size:
+            break
+        ua, va = u[active], v[active]
+        d = evaluate_surface(ku, kv, control_points, ua, va, degree=degree, order=2)
+        r = d[(0, 0)] - P[active]
         su, sv = d[(1, 0)], d[(0, 1)]
         g = np.stack([np.einsum("ij,ij->i", r, su), np.einsum("ij,ij->i", r, sv)], 1)
         huu = np.einsum("ij,ij->i", su, su) + np.einsum("ij,ij->i", r, d[(2, 0)])
@@ -154,25 +166,28 @@ def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
         step_u = -(hvv * g[:, 0] - huv * g[:, 1]) / det
         step_v = -(huu * g[:, 1] - huv * g[:, 0]) / det
         current = np.linalg.norm(r, axis=1)
-        new_u, new_v, new_d = u.copy(), v.copy(), current.copy()
+        new_u, new_v, new_d = ua.copy(), va.copy(), current.copy()
         todo = np.flatnonzero(np.abs(step_u) + np.abs(step_v) > 1e-13)
         scale = 1.0
         for _half in range(3):  # full step, then halves, only where the previous try did not help
             if not todo.size:
                 break
-            tu = np.clip(u[todo] + scale * step_u[todo], lo_u[todo], hi_u[todo])
-            tv = np.clip(v[todo] + scale * step_v[todo], lo_v[todo], hi_v[todo])
-            td = dist(tu, tv, todo)
+            rows = active[todo]
+            tu = np.clip(ua[todo] + scale * step_u[todo], lo_u[rows], hi_u[rows])
+            tv = np.clip(va[todo] + scale * step_v[todo], lo_v[rows], hi_v[rows])
+            td = distance(tu, tv, rows)
             better = td < current[todo]
             idx = todo[better]
             new_u[idx], new_v[idx], new_d[idx] = tu[better], tv[better], td[better]
             todo = todo[~better]
             scale *= 0.5
-        moved = np.maximum(np.abs(new_u - u), np.abs(new_v - v))
-        u, v = new_u, new_v
-        if moved.max(initial=0.0) < 1e-10:
-            break
-    return u, v, dist(u, v)
+        moved = np.maximum(np.abs(new_u - ua), np.abs(new_v - va))
+        u[active], v[active], dist[active] = new_u, new_v, new_d
+        active = active[moved >= 1e-10]
+    missing = np.flatnonzero(np.isnan(dist))  # only with iterations = 0
+    if missing.size:
+        dist[missing] = distance(u[missing], v[missing], missing)
+    return u, v, dist
 
 
 @dataclass(frozen=True, eq=False)

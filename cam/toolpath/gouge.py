@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cam.bspline import c0_pieces, foot_in_pieces
+from cam.bspline import c0_pieces, foot_in_pieces, piece_distance_bound
 from cam.toolpath.geometry import Patch
 
 __all__ = [
@@ -83,21 +83,29 @@ def _project(patch: Patch, x: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
         q, f = _project_box(s, x[rows], start, lo, hi)
         return q, np.linalg.norm(f - x[rows], axis=1)
 
-    uv, _ = foot_in_pieces(newton, c0_pieces(base.knots_u, base.degree[0], u0, u1),
-                           c0_pieces(base.knots_v, base.degree[1], v0, v1), uv)
+    pieces_u = c0_pieces(base.knots_u, base.degree[0], u0, u1)
+    pieces_v = c0_pieces(base.knots_v, base.degree[1], v0, v1)
+    bound = None
+    if pieces_u.size > 2 or pieces_v.size > 2:
+        bound = piece_distance_bound(base.knots_u, base.knots_v, base.control_points, pieces_u, pieces_v, x,
+                                     degree=base.degree)
+    uv, _ = foot_in_pieces(newton, pieces_u, pieces_v, uv, lower_bound=bound)
     return uv, s.evaluate(uv[:, 0], uv[:, 1])
 
 
 def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarray, iterations: int = 12
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Projected Newton for the foot point of x (n, 3) on surface s from uv (n, 2), inside the boxes
-    lo..hi (n, 2): (uv, foot)."""
+    lo..hi (n, 2): (uv, foot). A row stops once its step is below 1e-13; the rest iterate alone."""
     uv = np.clip(uv, lo, hi)
+    active = np.arange(len(uv))
     for _ in range(iterations):
-        u, v = uv[:, 0], uv[:, 1]
+        if not active.size:
+            break
+        u, v, xa, la, ha = uv[active, 0], uv[active, 1], x[active], lo[active], hi[active]
         p, su, sv = s.evaluate(u, v), s.evaluate(u, v, du=1), s.evaluate(u, v, dv=1)
         suu, suv, svv = s.evaluate(u, v, du=2), s.evaluate(u, v, du=1, dv=1), s.evaluate(u, v, dv=2)
-        d = p - x
+        d = p - xa
         g = np.stack([np.einsum("ij,ij->i", su, d), np.einsum("ij,ij->i", sv, d)], -1)
         a = np.einsum("ij,ij->i", su, su) + np.einsum("ij,ij->i", suu, d)
         b = np.einsum("ij,ij->i", su, sv) + np.einsum("ij,ij->i", suv, d)
@@ -111,7 +119,8 @@ def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarra
         det = np.maximum(a * c - b * b, 1e-300)
         step = -np.stack([c * g[:, 0] - b * g[:, 1], a * g[:, 1] - b * g[:, 0]], -1) / det[:, None]
         # A coordinate pinned at its bound with the gradient pushing out stays there (projected Newton).
-        pinned = ((uv <= lo) & (g > 0)) | ((uv >= hi) & (g < 0))
+        here = uv[active]
+        pinned = ((here <= la) & (g > 0)) | ((here >= ha) & (g < 0))
         step = np.where(pinned, 0.0, step)
         one = pinned.any(axis=1)
         if np.any(one):  # 1-D Newton along the free coordinate
@@ -120,9 +129,8 @@ def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarra
                                  np.stack([-g[one, 0] / np.maximum(a[one], 1e-300), np.zeros(one.sum())], -1),
                                  np.stack([np.zeros(one.sum()), -g[one, 1] / np.maximum(c[one], 1e-300)], -1))
             step[pinned] = 0.0
-        uv = np.clip(uv + step, lo, hi)
-        if np.max(np.abs(step), initial=0.0) < 1e-13:
-            break
+        uv[active] = np.clip(here + step, la, ha)
+        active = active[np.max(np.abs(step), axis=1) >= 1e-13]
     return uv, s.evaluate(uv[:, 0], uv[:, 1])
 
 

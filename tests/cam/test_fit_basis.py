@@ -125,3 +125,55 @@ def test_foot_points_cross_a_c0_line():
         assert d.max() < 1e-9
         np.testing.assert_allclose(np.stack([fu, fv], 1), np.stack([u, v], 1), atol=1e-6)
     assert distance_to_surface(ku, kv, cp, on)[2].max() < 1e-9
+
+
+def _bent_sheet():
+    ku = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2.0])
+    kv = np.array([0, 0, 0, 0, 0.5, 1, 1, 1, 1.0])
+    S, T = np.meshgrid([0, 1 / 3, 2 / 3, 1, 4 / 3, 5 / 3, 2], np.linspace(0, 1, 5), indexing="ij")
+    cp = np.stack([S, 4.0 * np.maximum(S - 1.0, 0.0) * (1 - T) + 2 * T, 0.3 * S * T + 0.2 * np.sin(3 * S)], -1)
+    return ku, kv, cp
+
+
+def test_piece_distance_bound_is_below_the_distance_to_the_piece():
+    # Against the nearest of 201 x 201 samples of each piece (which is at least the true distance):
+    # the bound never exceeds it, it is zero for points on the piece, and it prunes far points.
+    from cam.bspline import c0_pieces, piece_distance_bound
+
+    ku, kv, cp = _bent_sheet()
+    rng = np.random.default_rng(5)
+    on = evaluate_surface(ku, kv, cp, rng.uniform(1, 2, 50), rng.uniform(0, 1, 50), order=0)[(0, 0)]
+    pts = np.concatenate([rng.uniform([-0.5, -0.5, -0.5], [2.5, 4.5, 1.0], (300, 3)), on])
+    pu, pv = c0_pieces(ku, 3, 0.0, 2.0), c0_pieces(kv, 3, 0.0, 1.0)
+    assert pu.tolist() == [0.0, 1.0, 2.0] and pv.tolist() == [0.0, 1.0]
+    bound = piece_distance_bound(ku, kv, cp, pu, pv, pts)
+    rows, zero = np.arange(len(pts)), np.zeros(len(pts), dtype=np.int64)
+    for piece in (0, 1):
+        u, v = np.meshgrid(np.linspace(piece, piece + 1, 201), np.linspace(0, 1, 201), indexing="ij")
+        dense = evaluate_surface(ku, kv, cp, u.ravel(), v.ravel(), order=0)[(0, 0)]
+        nearest = np.min(np.linalg.norm(pts[:, None] - dense[None], axis=2), axis=1)
+        b = bound(rows, zero + piece, zero)
+        assert np.all(b <= nearest + 1e-12)
+        assert np.mean(b > 0.5) > 0.2
+    assert np.all(bound(rows[300:], zero[300:] + 1, zero[300:]) == 0.0)
+
+
+def test_foot_points_with_the_piece_bound_match_those_without():
+    # The bound only skips runs that cannot win: every foot and distance is the same as trying all.
+    from cam.bspline import c0_pieces, foot_in_pieces, piece_distance_bound
+    from cam.fit.param import _newton
+
+    ku, kv, cp = _bent_sheet()
+    rng = np.random.default_rng(8)
+    pts = rng.uniform([-0.2, -0.2, -0.6], [2.2, 4.2, 0.8], (500, 3))
+    start = rng.uniform([0, 0], [2, 1], (500, 2))
+
+    def newton(rows, uv, lo, hi):
+        fu, fv, d = _newton(ku, kv, cp, pts[rows], uv[:, 0], uv[:, 1], lo, hi, (3, 3), 8)
+        return np.stack([fu, fv], -1), d
+
+    pu, pv = c0_pieces(ku, 3, 0.0, 2.0), c0_pieces(kv, 3, 0.0, 1.0)
+    full = foot_in_pieces(newton, pu, pv, start)
+    pruned = foot_in_pieces(newton, pu, pv, start, lower_bound=piece_distance_bound(ku, kv, cp, pu, pv, pts))
+    np.testing.assert_array_equal(pruned[1], full[1])
+    np.testing.assert_array_equal(pruned[0], full[0])
