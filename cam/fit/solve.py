@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import splu, spsolve
 
 from cam.bspline import c0_knots, find_folds, make_bspline_surface
 from cam.fit.basis import evaluate_surface, span_params, surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
@@ -172,11 +172,11 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         rows = [(surface_rows(ku, kv, u, v, degree=degree), terms)]
         if normal_weight_mm > 0:
             # S_u · n = 0 and S_v · n = 0, scaled by |S_u|, |S_v|: the sine of the normal error.
-            for du, dv, tangent in ((1, 0, frame.su), (0, 1, frame.sv)):
-                w = normal_weight_mm**2 * keep / np.maximum(np.einsum("ij,ij->i", tangent, tangent), 1e-24)
+            for du, dv, tangent, length in ((1, 0, frame.su, lengths_mm[0]), (0, 1, frame.sv, lengths_mm[1])):
+                w = normal_weight_mm**2 * keep / _speed2(tangent, length)
                 rows.append((surface_rows(ku, kv, u, v, degree=degree, du=du, dv=dv), [(Nm, w, np.zeros(len(P)))]))
         if kink_weight_mm > 0:
-            rows += _kink_rows(ku, kv, cp, degree, kink_weight_mm)
+            rows += _kink_rows(ku, kv, cp, degree, kink_weight_mm, lengths_mm)
         if anchors is not None:
             af = foot_frames(ku, kv, cp, anchors.u, anchors.v, degree=degree)
             rows.append(_anchor_rows(anchors, ku, kv, degree, anchor_weight, param_weight, af.t1, af.t2, []))
@@ -184,7 +184,18 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     return best
 
 
-def _kink_rows(ku, kv, cp, degree, weight_mm: float, per_span: int = 4) -> list:
+def _speed2(tangent: np.ndarray, length_mm: float) -> np.ndarray:
+    """|S_u|² of tangents (n, 3), floored at a tenth of the mean grid step `length_mm` squared.
+
+    Dividing S_u · n by |S_u| makes it the sine of an angle, but where S_u nearly vanishes (a
+    collapsed corner, a short piece of a border) the angle is undefined, and the unfloored weight
+    reached 1e9 times the data's: the normal equations lost every digit and the step was garbage.
+    """
+    return np.maximum(np.einsum("ij,ij->i", tangent, tangent), (0.1 * length_mm) ** 2)
+
+
+def _kink_rows(ku, kv, cp, degree, weight_mm: float, lengths_mm: tuple[float, float] = (1.0, 1.0),
+               per_span: int = 4) -> list:
     """Rows that hold both sides of every C0 knot line tangent to one plane (G1 across it).
 
     Along a line u = c, S_u just before and at c (the two pieces' own derivatives) should be
@@ -207,9 +218,20 @@ def _kink_rows(ku, kv, cp, degree, weight_mm: float, per_span: int = 4) -> list:
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         key, du, dv = ((1, 0), 1, 0) if axis == 0 else ((0, 1), 0, 1)
         for (a, b), d in zip(sides, ders):
-            w = weight_mm**2 / (2 * c.size) / np.maximum(np.einsum("ij,ij->i", d[key], d[key]), 1e-24)
+            w = weight_mm**2 / (2 * c.size) / _speed2(d[key], lengths_mm[axis])
             out.append((surface_rows(ku, kv, a, b, degree=degree, du=du, dv=dv), [(n, w, np.zeros(c.size))]))
     return out
+
+
+def _solve_spd(M: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
+    """Solve M x = r for symmetric positive definite M (every weight here is >= 0 and the thin plate
+    and the weak-point terms make it definite): an LU with a symmetric fill-reducing order and no
+    pivoting, about 4 times faster here than the general default. Falls back to that default if the
+    factor breaks down (a pivot of zero)."""
+    try:
+        return splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).solve(r)
+    except RuntimeError:
+        return spsolve(M, r)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -286,5 +308,5 @@ class _System:
             M_ff = M_ff + sp.diags(np.where(weak, scale * 1e-10, 0.0))
             r = r + np.where(weak, scale * 1e-10, 0.0) * c_all[self.free3]
         c_all = c_all.copy()
-        c_all[self.free3] = spsolve(M_ff.tocsc(), r)
+        c_all[self.free3] = _solve_spd(M_ff.tocsc(), r)
         return c_all.reshape(3, -1).T.reshape(cp_current.shape)
