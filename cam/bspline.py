@@ -120,58 +120,63 @@ def c0_pieces(knots: np.ndarray, degree: int, lo: float, hi: float) -> np.ndarra
     return np.concatenate([[lo], inner[(inner > lo) & (inner < hi)], [hi]])
 
 
-def piece_distance_bound(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
-                         pieces_u: np.ndarray, pieces_v: np.ndarray, points: np.ndarray, *,
-                         degree: tuple[int, int] = (3, 3)):
-    """A lower bound on the distance from points to each piece between C0 lines, for `foot_in_pieces`.
+@dataclass(frozen=True, eq=False)
+class PieceBoxes:
+    """Boxes around the control points of every knot span, grouped by the piece between C0 lines
+    that the span lies in (see `make_piece_boxes`): lo[k], hi[k] float64 (m, 3) mm for piece
+    k = iu * pieces_v + iv."""
 
-    A knot span of a B-spline surface lies in the convex hull of the (p+1) x (q+1) control points
-    that act on it, so the distance to the box around them bounds the distance to the span from
-    below, and the nearest box of a piece's spans bounds the piece. It lets `foot_in_pieces` skip
-    the Newton runs in neighbouring pieces that cannot hold a nearer foot, which is nearly all of them.
-    knots, control_points (nu, nv, 3) and degree as in `BSplineSurface`; pieces_u/v from `c0_pieces`;
-    points float64 (n, 3) mm. Returns bound(rows int (k,), iu (k,), iv (k,)) -> float64 (k,) mm: the
-    bound for points[rows] and the pieces (iu, iv).
-    """
-    p, q = degree
-    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
-    cp = np.asarray(control_points, dtype=np.float64)
-    P = np.asarray(points, dtype=np.float64)
-    su = np.flatnonzero(ku[p:cp.shape[0]] < ku[p + 1:cp.shape[0] + 1]) + p  # spans of positive length
-    sv = np.flatnonzero(kv[q:cp.shape[1]] < kv[q + 1:cp.shape[1] + 1]) + q
-    bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)
-    # The piece a span belongs to: the one its midpoint falls in.
-    piece_u = np.clip(np.searchsorted(bu, 0.5 * (ku[su] + ku[su + 1]), side="right") - 1, 0, bu.size - 2)
-    piece_v = np.clip(np.searchsorted(bv, 0.5 * (kv[sv] + kv[sv + 1]), side="right") - 1, 0, bv.size - 2)
-    boxes = {}
-    for a in range(bu.size - 1):
-        for b in range(bv.size - 1):
-            lo, hi = [], []
-            for i in su[piece_u == a]:
-                block = cp[i - p:i + 1]
-                for j in sv[piece_v == b]:
-                    net = block[:, j - q:j + 1].reshape(-1, 3)
-                    lo.append(net.min(axis=0))
-                    hi.append(net.max(axis=0))
-            boxes[a, b] = (np.array(lo).reshape(-1, 3), np.array(hi).reshape(-1, 3))
+    lo: tuple[np.ndarray, ...]
+    hi: tuple[np.ndarray, ...]
+    pieces_v: int
 
-    def bound(rows: np.ndarray, iu: np.ndarray, iv: np.ndarray) -> np.ndarray:
-        out = np.full(len(rows), np.inf)
-        key = np.asarray(iu) * (bv.size - 1) + np.asarray(iv)
+    def distance_bound(self, points: np.ndarray, iu: np.ndarray, iv: np.ndarray) -> np.ndarray:
+        """A lower bound on the distance from each of points (k, 3) to the piece (iu, iv): float64 (k,) mm."""
+        out = np.full(len(points), np.inf)
+        key = np.asarray(iu) * self.pieces_v + np.asarray(iv)
         for k in np.unique(key):
-            lo, hi = boxes[divmod(int(k), bv.size - 1)]
+            lo, hi = self.lo[k], self.hi[k]
             if not len(lo):
                 continue
             at = np.flatnonzero(key == k)
             step = max(1, 2_000_000 // len(lo))  # points per chunk: about 50 MB of gaps
             for c in range(0, at.size, step):
                 sel = at[c:c + step]
-                x = P[rows[sel]][:, None, :]
+                x = points[sel][:, None, :]
                 gap = np.maximum(np.maximum(lo - x, x - hi), 0.0)
                 out[sel] = np.sqrt(np.min(np.einsum("kmi,kmi->km", gap, gap), axis=1))
         return out
 
-    return bound
+
+def make_piece_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
+                     pieces_u: np.ndarray, pieces_v: np.ndarray, *, degree: tuple[int, int] = (3, 3)) -> PieceBoxes:
+    """The boxes that bound each piece between C0 lines from below, for `foot_in_pieces`.
+
+    A knot span of a B-spline surface lies in the convex hull of the (p+1) x (q+1) control points
+    that act on it, so the distance to the box around them bounds the distance to the span from
+    below, and the nearest box of a piece's spans bounds the piece. It lets `foot_in_pieces` skip
+    the Newton runs in neighbouring pieces that cannot hold a nearer foot, which is nearly all of them.
+    knots, control_points (nu, nv, 3) and degree as in `BSplineSurface`; pieces_u/v from `c0_pieces`.
+    """
+    p, q = degree
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    cp = np.asarray(control_points, dtype=np.float64)
+    nu, nv = cp.shape[:2]
+    nets = np.lib.stride_tricks.sliding_window_view(cp, (p + 1, q + 1), axis=(0, 1))  # (nu-p, nv-q, 3, p+1, q+1)
+    lo_all, hi_all = nets.min(axis=(3, 4)), nets.max(axis=(3, 4))
+    su = np.flatnonzero(ku[p:nu] < ku[p + 1:nu + 1])  # spans of positive length, as window indices
+    sv = np.flatnonzero(kv[q:nv] < kv[q + 1:nv + 1])
+    bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)
+    # The piece a span belongs to: the one its midpoint falls in (spans never straddle a C0 line).
+    piece_u = np.clip(np.searchsorted(bu, 0.5 * (ku[su + p] + ku[su + p + 1]), side="right") - 1, 0, bu.size - 2)
+    piece_v = np.clip(np.searchsorted(bv, 0.5 * (kv[sv + q] + kv[sv + q + 1]), side="right") - 1, 0, bv.size - 2)
+    lo, hi = [], []
+    for a in range(bu.size - 1):
+        for b in range(bv.size - 1):
+            i, j = np.ix_(su[piece_u == a], sv[piece_v == b])
+            lo.append(lo_all[i, j].reshape(-1, 3))
+            hi.append(hi_all[i, j].reshape(-1, 3))
+    return PieceBoxes(tuple(lo), tuple(hi), bv.size - 1)
 
 
 def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.ndarray, *, rounds: int = 2,
@@ -185,8 +190,9 @@ def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.nd
     times), the nearest foot kept.
     newton(rows int (k,), uv (k, 2), lo (k, 2), hi (k, 2)) -> (uv (k, 2), distance (k,)) runs the
     method for those rows inside the boxes lo..hi; pieces_u/v from `c0_pieces`; uv (n, 2) the starts.
-    lower_bound(rows, iu, iv) -> (k,), from `piece_distance_bound`: a piece whose bound is not below
-    the distance found so far is not tried (the answer is the same, found with fewer runs).
+    lower_bound(rows, iu, iv) -> (k,): a bound on the distance from those rows' points to the
+    pieces (iu, iv), such as `PieceBoxes.distance_bound`; a piece whose bound is not below the
+    distance found so far is not tried (the answer is the same, found with fewer runs).
     Returns uv (n, 2) and distance (n,).
     """
     bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import c0_pieces, foot_in_pieces, piece_distance_bound
+from cam.bspline import c0_pieces, foot_in_pieces, make_piece_boxes
 from cam.fit.basis import evaluate_surface, span_params
 from cam.closest import closest_points, mesh_index
 
@@ -124,7 +124,10 @@ def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.
     pieces_u, pieces_v = c0_pieces(ku, p, ku[p], ku[-p - 1]), c0_pieces(kv, q, kv[q], kv[-q - 1])
     bound = None
     if pieces_u.size > 2 or pieces_v.size > 2:
-        bound = piece_distance_bound(ku, kv, control_points, pieces_u, pieces_v, P, degree=degree)
+        boxes = make_piece_boxes(ku, kv, control_points, pieces_u, pieces_v, degree=degree)
+
+        def bound(rows, iu, iv):
+            return boxes.distance_bound(P[rows], iu, iv)
     uv, d = foot_in_pieces(newton, pieces_u, pieces_v, np.clip(start, [ku[p], kv[q]], [ku[-p - 1], kv[-q - 1]]),
                            lower_bound=bound)
     return uv[:, 0], uv[:, 1], d

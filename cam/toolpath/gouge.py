@@ -10,12 +10,13 @@ not meet any patch either — where it would, the position cannot be reached fro
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cam.bspline import c0_pieces, foot_in_pieces, piece_distance_bound
+from cam.bspline import BSplineSurface, c0_pieces, foot_in_pieces, make_piece_boxes
 from cam.toolpath.geometry import Patch
 
 __all__ = [
@@ -83,14 +84,22 @@ def _project(patch: Patch, x: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
         q, f = _project_box(s, x[rows], start, lo, hi)
         return q, np.linalg.norm(f - x[rows], axis=1)
 
-    pieces_u = c0_pieces(base.knots_u, base.degree[0], u0, u1)
-    pieces_v = c0_pieces(base.knots_v, base.degree[1], v0, v1)
-    bound = None
-    if pieces_u.size > 2 or pieces_v.size > 2:
-        bound = piece_distance_bound(base.knots_u, base.knots_v, base.control_points, pieces_u, pieces_v, x,
-                                     degree=base.degree)
+    pieces_u, pieces_v, boxes = _pieces(base, u0, u1, v0, v1)
+    bound = None if boxes is None else (lambda rows, iu, iv: boxes.distance_bound(x[rows], iu, iv))
     uv, _ = foot_in_pieces(newton, pieces_u, pieces_v, uv, lower_bound=bound)
     return uv, s.evaluate(uv[:, 0], uv[:, 1])
+
+
+@functools.lru_cache(maxsize=256)
+def _pieces(base: BSplineSurface, u0: float, u1: float, v0: float, v1: float):
+    """The pieces between C0 lines of base's domain part u0..u1 x v0..v1 and their boxes (None
+    for one piece); cached because the planner projects a few points at a time, thousands of times."""
+    pieces_u = c0_pieces(base.knots_u, base.degree[0], u0, u1)
+    pieces_v = c0_pieces(base.knots_v, base.degree[1], v0, v1)
+    if pieces_u.size == 2 and pieces_v.size == 2:
+        return pieces_u, pieces_v, None
+    return pieces_u, pieces_v, make_piece_boxes(base.knots_u, base.knots_v, base.control_points, pieces_u,
+                                                pieces_v, degree=base.degree)
 
 
 def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarray, iterations: int = 12

@@ -135,10 +135,10 @@ def _bent_sheet():
     return ku, kv, cp
 
 
-def test_piece_distance_bound_is_below_the_distance_to_the_piece():
+def test_piece_boxes_bound_the_distance_to_the_piece():
     # Against the nearest of 201 x 201 samples of each piece (which is at least the true distance):
     # the bound never exceeds it, it is zero for points on the piece, and it prunes far points.
-    from cam.bspline import c0_pieces, piece_distance_bound
+    from cam.bspline import c0_pieces, make_piece_boxes
 
     ku, kv, cp = _bent_sheet()
     rng = np.random.default_rng(5)
@@ -146,21 +146,21 @@ def test_piece_distance_bound_is_below_the_distance_to_the_piece():
     pts = np.concatenate([rng.uniform([-0.5, -0.5, -0.5], [2.5, 4.5, 1.0], (300, 3)), on])
     pu, pv = c0_pieces(ku, 3, 0.0, 2.0), c0_pieces(kv, 3, 0.0, 1.0)
     assert pu.tolist() == [0.0, 1.0, 2.0] and pv.tolist() == [0.0, 1.0]
-    bound = piece_distance_bound(ku, kv, cp, pu, pv, pts)
-    rows, zero = np.arange(len(pts)), np.zeros(len(pts), dtype=np.int64)
+    boxes = make_piece_boxes(ku, kv, cp, pu, pv)
+    zero = np.zeros(len(pts), dtype=np.int64)
     for piece in (0, 1):
         u, v = np.meshgrid(np.linspace(piece, piece + 1, 201), np.linspace(0, 1, 201), indexing="ij")
         dense = evaluate_surface(ku, kv, cp, u.ravel(), v.ravel(), order=0)[(0, 0)]
         nearest = np.min(np.linalg.norm(pts[:, None] - dense[None], axis=2), axis=1)
-        b = bound(rows, zero + piece, zero)
+        b = boxes.distance_bound(pts, zero + piece, zero)
         assert np.all(b <= nearest + 1e-12)
         assert np.mean(b > 0.5) > 0.2
-    assert np.all(bound(rows[300:], zero[300:] + 1, zero[300:]) == 0.0)
+    assert np.all(boxes.distance_bound(pts[300:], zero[300:] + 1, zero[300:]) == 0.0)
 
 
 def test_foot_points_with_the_piece_bound_match_those_without():
     # The bound only skips runs that cannot win: every foot and distance is the same as trying all.
-    from cam.bspline import c0_pieces, foot_in_pieces, piece_distance_bound
+    from cam.bspline import c0_pieces, foot_in_pieces, make_piece_boxes
     from cam.fit.param import _newton
 
     ku, kv, cp = _bent_sheet()
@@ -174,6 +174,7 @@ def test_foot_points_with_the_piece_bound_match_those_without():
 
     pu, pv = c0_pieces(ku, 3, 0.0, 2.0), c0_pieces(kv, 3, 0.0, 1.0)
     full = foot_in_pieces(newton, pu, pv, start)
-    pruned = foot_in_pieces(newton, pu, pv, start, lower_bound=piece_distance_bound(ku, kv, cp, pu, pv, pts))
+    boxes = make_piece_boxes(ku, kv, cp, pu, pv)
+    pruned = foot_in_pieces(newton, pu, pv, start, lower_bound=lambda rows, iu, iv: boxes.distance_bound(pts[rows], iu, iv))
     np.testing.assert_array_equal(pruned[1], full[1])
     np.testing.assert_array_equal(pruned[0], full[0])
