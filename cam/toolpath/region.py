@@ -3,10 +3,10 @@
 A fitted patch may fold over itself in a thin strip along a border (its boundary curve sits on a
 crease that the reconstructed mesh rounded), or hold a hollow whose radius of curvature is not
 larger than the tool radius. On neither is a scallop bound meaningful: the first has no outward
-normal, the second no tangent ball. The planner machines the largest rectangle it can keep by
-moving the sides of the parameter square inward past such samples, cheapest cut first, and
-reports what it left out (verify then counts it as never reached). When the trouble is inside,
-the rectangle empties and the whole patch is reported, with the reason, never cut.
+normal, the second no tangent ball. The planner machines the parameter rectangle of largest area
+that holds none of such samples (exactly, over the sample grid's rectangles), and reports what it
+left out (verify then counts it as never reached). When no rectangle of three by three samples is
+clear, the whole patch is reported, with the reason, never cut.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from cam.toolpath.geometry import Patch, frame, principal_curvatures
 from cam.toolpath.grid import concave_message
 from cam.toolpath.scallop import fits_concave
 
-__all__ = ["Region", "area_share", "finishable_region", "sub_surface", "surface_area"]
+__all__ = ["Region", "area_share", "finishable_region", "largest_clear_rectangle", "sub_surface", "surface_area"]
 
 
 @dataclass(frozen=True)
@@ -35,10 +35,10 @@ class Region:
 
 
 def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = 65) -> Region:
-    """The parameter rectangle of `patch` without folds or hollows of radius ≤ `tool_radius_mm`.
+    """The parameter rectangle of `patch` of largest area without folds or hollows of radius ≤ `tool_radius_mm`.
 
-    Checked on a samples x samples grid; each side moves inward one grid line past the bad samples
-    nearest to it, until none is left inside.
+    Checked on a samples x samples grid: the rectangle's sides lie on grid lines and no sample on
+    or inside it is bad; of all such rectangles the one of largest surface area is kept.
     """
     r = float(tool_radius_mm)
     folded, uu, vv = fold_mask(patch.surface, samples=samples)
@@ -51,34 +51,47 @@ def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = 65)
     if not bad.any():
         (u0, u1), (v0, v1) = patch.domain
         return Region((u0, u1, v0, v1), 1.0, "")
-    i0, i1, j0, j1 = 0, samples - 1, 0, samples - 1
-    while True:
-        bi, bj = np.nonzero(bad[i0:i1 + 1, j0:j1 + 1])
-        if not bi.size:
-            break
-        bi, bj = bi + i0, bj + j0
-        # Each bad sample is cut off by the side nearest to it; that side moves one grid line past
-        # the deepest of its samples. A strip along a border costs only its own width.
-        depth = np.stack([bi - i0, i1 - bi, bj - j0, j1 - bj])
-        nearest = np.argmin(depth, axis=0)
-        for side in range(4):
-            mine = nearest == side
-            if not mine.any():
-                continue
-            d = int(depth[side, mine].max()) + 1
-            if side == 0:
-                i0 += d
-            elif side == 1:
-                i1 -= d
-            elif side == 2:
-                j0 += d
-            else:
-                j1 -= d
-        if i1 - i0 < 2 or j1 - j0 < 2:
-            return Region(None, 0.0, _reason(patch, folded, hollow, kmin, fr, r))
+    best = largest_clear_rectangle(bad, area)
+    if best is None:
+        return Region(None, 0.0, _reason(patch, folded, hollow, kmin, fr, r))
+    i0, i1, j0, j1 = best
     kept = float(area[i0:i1 + 1, j0:j1 + 1].sum()) / total
     box = (float(uu[i0, 0]), float(uu[i1, 0]), float(vv[0, j0]), float(vv[0, j1]))
     return Region(box, kept, _reason(patch, folded, hollow, kmin, fr, r))
+
+
+def largest_clear_rectangle(bad: np.ndarray, weight: np.ndarray, *, min_span: int = 2
+                            ) -> tuple[int, int, int, int] | None:
+    """The rectangle of grid indices (i0, i1, j0, j1), inclusive, that holds no `bad` cell and has the
+    largest sum of `weight` (float >= 0, same shape (n, m) as bad), with i1 - i0 and j1 - j0 at least
+    `min_span`; None when there is none.
+
+    For each top row i0 and bottom row i1 a column is clear when no row between them is bad there;
+    with weights >= 0 the best rectangle on those rows is a whole run of clear columns. O(n² m).
+    """
+    bad = np.asarray(bad, dtype=bool)
+    weight = np.asarray(weight, dtype=np.float64)
+    if bad.shape != weight.shape or bad.ndim != 2:
+        raise ValueError(f"bad and weight must be 2-D arrays of one shape, got {bad.shape} and {weight.shape}")
+    n, m = bad.shape
+    rows_sum = np.vstack([np.zeros((1, m)), np.cumsum(weight, axis=0)])
+    best, out = -np.inf, None
+    for i0 in range(n - min_span):
+        blocked = np.logical_or.accumulate(bad[i0:], axis=0)[min_span:]  # bottom rows i0 + min_span ...
+        w = rows_sum[i0 + min_span + 1:] - rows_sum[i0]
+        tall = blocked.shape[0]
+        run = np.cumsum(blocked, axis=1)  # clear columns of one run share their count of blocked ones
+        key = (np.arange(tall)[:, None] * (m + 1) + run)[~blocked]
+        sums = np.bincount(key, weights=w[~blocked], minlength=tall * (m + 1)).astype(np.float64)  # int when empty
+        lengths = np.bincount(key, minlength=tall * (m + 1))
+        sums[lengths < min_span + 1] = -np.inf
+        k = int(np.argmax(sums))
+        if sums[k] > best:
+            best = float(sums[k])
+            t, r = divmod(k, m + 1)
+            cols = np.flatnonzero(~blocked[t] & (run[t] == r))
+            out = (i0, i0 + min_span + t, int(cols[0]), int(cols[-1]))
+    return out
 
 
 def _reason(patch: Patch, folded, hollow, kmin, fr, r: float) -> str:

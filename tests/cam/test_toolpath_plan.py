@@ -55,9 +55,18 @@ def test_a_folded_surface_is_found_and_reported_not_cut():
     assert find_folds(flat) == (0.0, None)
     fraction, at = find_folds(_folded_plane())
     assert 0 < fraction < 1 and 0.0 < at[0] < 10.0
-    plan = plan_job([3, 8], [_folded_plane(), flat], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
-    assert [u["patch"] for u in plan.unmachined] == [3] and "folds over itself" in plan.unmachined[0]["reason"]
-    assert [p.patch for s in plan.setups for p in s.patches] == [8]
+    # The fold (u in about [0.5, 0.75]) is left out and reported; the largest rectangle clear of it,
+    # u in [0, 0.48] (x up to 6), is machined, and no contact lies on the fold.
+    folded = _folded_plane()
+    plan = plan_job([3, 8], [folded, flat], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
+    assert plan.unmachined == []
+    (claim,) = plan.partial
+    assert claim["patch"] == 3 and "folds over itself" in claim["reason"]
+    u0, u1, v0, v1 = claim["region"]
+    assert (u0, v0, v1) == (0.0, 0.0, 1.0) and 0.45 < u1 < 0.5
+    (pp,) = [p for s in plan.setups for p in s.patches if p.patch == 3]
+    tips = np.concatenate(pp.passes)  # a plane: tip = contact
+    assert tips[:, 0].max() <= float(folded.evaluate(np.array([u1]), np.array([0.5]))[0, 0]) + 1e-6
 
 
 def test_certificate_holds_and_adaptive_beats_the_paper_on_a_dome():
@@ -96,6 +105,40 @@ def test_a_patch_facing_down_goes_to_the_opposite_setup():
     assert np.allclose(plan.setups[1].setup.rotation, np.diag([1.0, -1.0, -1.0]))
     with pytest.raises(ValueError, match="scallop height"):
         plan_job([1], [top], EYE, tool_radius_mm=3.0, scallop_height_mm=3.5)
+
+
+def test_largest_clear_rectangle_against_every_rectangle():
+    from cam.toolpath.region import largest_clear_rectangle
+
+    def brute(bad, weight):
+        best, out = -1.0, None
+        n, m = bad.shape
+        for i0 in range(n):
+            for i1 in range(i0 + 2, n):
+                for j0 in range(m):
+                    for j1 in range(j0 + 2, m):
+                        if not bad[i0:i1 + 1, j0:j1 + 1].any() and weight[i0:i1 + 1, j0:j1 + 1].sum() > best:
+                            best, out = weight[i0:i1 + 1, j0:j1 + 1].sum(), (i0, i1, j0, j1)
+        return out, best
+
+    rng = np.random.default_rng(4)
+    for _ in range(150):
+        n, m = rng.integers(2, 11, 2)
+        bad = rng.random((n, m)) < rng.uniform(0.0, 0.4)
+        weight = rng.random((n, m))
+        want, best = brute(bad, weight)
+        got = largest_clear_rectangle(bad, weight)
+        assert (got is None) == (want is None)
+        if got is not None:
+            i0, i1, j0, j1 = got
+            assert i1 - i0 >= 2 and j1 - j0 >= 2 and not bad[i0:i1 + 1, j0:j1 + 1].any()
+            assert weight[i0:i1 + 1, j0:j1 + 1].sum() == pytest.approx(best, rel=1e-12)
+    # Two bad cells inside: moving each side past the bad cells nearest to it (the previous rule)
+    # cut rows from the top past (4, 5) and from the bottom past (6, 6) and kept nothing; half the
+    # square, columns 0..4, is clear.
+    bad = np.zeros((10, 10), dtype=bool)
+    bad[4, 5] = bad[6, 6] = True
+    assert largest_clear_rectangle(bad, np.ones((10, 10))) == (0, 9, 0, 4)
 
 
 def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
