@@ -175,6 +175,7 @@ def test_foot_points_with_the_piece_bound_match_those_without():
     pu, pv = c0_pieces(ku, 3, 0.0, 2.0), c0_pieces(kv, 3, 0.0, 1.0)
     full = foot_in_pieces(newton, pu, pv, start)
     boxes = make_piece_boxes(ku, kv, cp, pu, pv)
-    pruned = foot_in_pieces(newton, pu, pv, start, lower_bound=lambda rows, iu, iv: boxes.distance_bound(pts[rows], iu, iv))
+    pruned = foot_in_pieces(newton, pu, pv, start,
+                            lower_bound=lambda rows, iu, iv: boxes.distance_bound(pts[rows], iu, iv))
     np.testing.assert_array_equal(pruned[1], full[1])
     np.testing.assert_array_equal(pruned[0], full[0])
