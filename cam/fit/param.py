@@ -139,7 +139,7 @@ def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
     A row stops once its step moves it less than 1e-10 (or not at all): most converge in two or
     three steps, and the rest keep iterating alone."""
     lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
-    u, v = np.clip(u, lo_u, hi_u).copy(), np.clip(v, lo_v, hi_v).copy()
+    u, v = np.clip(u, lo_u, hi_u), np.clip(v, lo_v, hi_v)  # new arrays: updated in place below
     dist = np.full(u.size, np.nan)
 
     def distance(uu, vv, idx):
