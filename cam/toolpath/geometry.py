@@ -17,7 +17,9 @@ from cam.bspline import BSplineSurface, make_bspline_surface
 __all__ = [
     "Frame",
     "Patch",
+    "across_iso_line",
     "frame",
+    "iso_line_frame",
     "normal_curvature",
     "orientation_signs",
     "principal_curvatures",
@@ -104,6 +106,23 @@ def normal_curvature(fr: Frame, du: np.ndarray, dv: np.ndarray) -> np.ndarray:
     num = fr.l * du * du + 2 * fr.m * du * dv + fr.nn * dv * dv
     den = fr.e * du * du + 2 * fr.f * du * dv + fr.g * dv * dv
     return num / den
+
+
+def iso_line_frame(patch: Patch, along: str, fixed: float, q: np.ndarray) -> Frame:
+    """Frame on an iso-line at parameters q (float (n,)): along 'u' means v = fixed and u = q."""
+    if along == "u":
+        return frame(patch, q, np.full_like(q, fixed))
+    return frame(patch, np.full_like(q, fixed), q)
+
+
+def across_iso_line(fr: Frame, along: str) -> tuple[np.ndarray, np.ndarray]:
+    """Normal curvature across the iso-line and the distance between iso-lines per parameter unit."""
+    root = np.sqrt(np.maximum(fr.e * fr.g - fr.f ** 2, 1e-300))
+    if along == "u":  # line v = const; across is S_v minus its part along S_u
+        kappa = normal_curvature(fr, -fr.f / fr.e, np.ones_like(fr.e))
+        return kappa, root / np.sqrt(fr.e)
+    kappa = normal_curvature(fr, np.ones_like(fr.e), -fr.f / fr.g)
+    return kappa, root / np.sqrt(fr.g)
 
 
 def principal_curvatures(fr: Frame) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,6 @@
 """The paper's Algorithm 1: the grid of iso-parameter lines whose concentric rings machine a patch.
 
-Starting from the four boundary lines of the parameter square, each side of the current ring
+Starting from the first ring, each side of the current ring
 takes the largest step into the patch whose scallop stays within the budget: sample k points on
 the side, turn the admissible arc gap at each (exact relation, signed normal curvature across the
 side) into a parameter step with the first fundamental form — the distance between the iso-lines
@@ -13,8 +13,10 @@ where both gaps hold.
 
 `strategy="paper"` is the published variant used as the baseline: one global minimum interval per
 parameter direction for the whole patch, and at each ring corner Δs shrinks until the corner pocket
-holds. `strategy="adaptive"` (ours) takes the admissible step of each side of each ring and leaves the
-corner pockets to short corner excursions (see `rings.py`), which keeps the certificate with shorter paths.
+holds; its first ring runs on the patch's edges. `strategy="adaptive"` (ours) starts its first ring as far
+inside the edges as one pass may leave the budget there (`edge.py`), takes the admissible step of each side
+of each ring and leaves the corner pockets to short corner excursions (see `rings.py`), which keeps the
+certificate with shorter paths.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.geometry import NotPlannable, Patch, frame, normal_curvature, principal_curvatures
+from cam.toolpath.edge import inset_rectangle
+from cam.toolpath.geometry import NotPlannable, Patch, across_iso_line, frame, iso_line_frame, principal_curvatures
 from cam.toolpath.scallop import arc_gap, fits_concave, scallop_from_half_chord
 
 __all__ = ["RingGrid", "TooConcave", "check_concavity", "concave_message", "global_steps", "ring_grid"]
@@ -47,13 +50,17 @@ class RingGrid:
 
     rects: float64 (K, 4) = (u0, u1, v0, v1) of each ring; a ring with u0 == u1 or v0 == v1 is a line
     (the innermost). side_scallop: float64 (K − 1, 4) predicted scallop (mm) of the gap between ring k
-    and k + 1 on the sides SIDES; side_steps: float64 (K − 1, 4) the parameter steps taken.
+    and k + 1 on the sides SIDES; side_steps: float64 (K − 1, 4) the parameter steps taken. claim: the
+    rectangle the rings finish (the patch's domain); edge_scallop: float64 (4,) the material (mm) the
+    first ring leaves on the claim's edges, in SIDES order (zero where the first ring runs on the edge).
     """
 
     rects: np.ndarray
     side_scallop: np.ndarray
     side_steps: np.ndarray
     strategy: str
+    claim: tuple[float, float, float, float]
+    edge_scallop: np.ndarray
 
 
 def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -> None:
@@ -74,23 +81,6 @@ def concave_message(radius_mm: float, tool_radius_mm: float, point: np.ndarray) 
     """What a user reads about a hollow the ball does not fit."""
     return (f"concave radius of curvature {radius_mm:.3f} mm is not larger than the tool radius "
             f"{tool_radius_mm:g} mm near {np.round(point, 3).tolist()}; use a smaller ball")
-
-
-def _line(patch: Patch, along: str, fixed: float, q: np.ndarray):
-    """Frame on the iso-line: along 'u' means v = fixed and u = q."""
-    if along == "u":
-        return frame(patch, q, np.full_like(q, fixed))
-    return frame(patch, np.full_like(q, fixed), q)
-
-
-def _across(fr, along: str) -> tuple[np.ndarray, np.ndarray]:
-    """Normal curvature across the iso-line and the distance between iso-lines per parameter unit."""
-    root = np.sqrt(np.maximum(fr.e * fr.g - fr.f ** 2, 1e-300))
-    if along == "u":  # line v = const; across is S_v minus its part along S_u
-        kappa = normal_curvature(fr, -fr.f / fr.e, np.ones_like(fr.e))
-        return kappa, root / np.sqrt(fr.e)
-    kappa = normal_curvature(fr, np.ones_like(fr.e), -fr.f / fr.g)
-    return kappa, root / np.sqrt(fr.g)
 
 
 def _point_to_polyline(x: np.ndarray, poly: np.ndarray):
@@ -115,10 +105,10 @@ def gap_scallop(patch: Patch, *, along: str, fixed0: float, fixed1: float, lo: f
     """
     q0 = np.linspace(lo, hi, samples)
     q1 = np.linspace(lo, hi, 4 * samples)
-    f0, f1 = _line(patch, along, fixed0, q0), _line(patch, along, fixed1, q1)
+    f0, f1 = iso_line_frame(patch, along, fixed0, q0), iso_line_frame(patch, along, fixed1, q1)
     c0, c1 = f0.p + r * f0.n, f1.p + r * f1.n
-    k0, _ = _across(f0, along)
-    k1, _ = _across(f1, along)
+    k0, _ = across_iso_line(f0, along)
+    k1, _ = across_iso_line(f1, along)
     dist, seg, frac = _point_to_polyline(c0, c1)
     k_foot = k1[seg] * (1 - frac) + k1[seg + 1] * frac
     h = scallop_from_half_chord(dist / 2, r, np.minimum(k0, k_foot))
@@ -133,8 +123,8 @@ def side_step(patch: Patch, *, along: str, fixed: float, lo: float, hi: float, d
     if room <= 0:
         return 0.0, 0.0
     if start is None:
-        fr = _line(patch, along, fixed, np.linspace(lo, hi, samples))
-        kappa, speed = _across(fr, along)
+        fr = iso_line_frame(patch, along, fixed, np.linspace(lo, hi, samples))
+        kappa, speed = across_iso_line(fr, along)
         step = float(np.min(arc_gap(h, r, kappa) / speed))
     else:
         step = start
@@ -156,8 +146,8 @@ def global_steps(patch: Patch, *, r: float, h: float, samples: int) -> tuple[flo
     (u0, u1), (v0, v1) = patch.domain
     uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
     fr = frame(patch, uu, vv)
-    ku, su = _across(fr, "v")  # lines u = const: step in u
-    kv, sv = _across(fr, "u")
+    ku, su = across_iso_line(fr, "v")  # lines u = const: step in u
+    kv, sv = across_iso_line(fr, "u")
     return float(np.min(arc_gap(h, r, ku) / su)), float(np.min(arc_gap(h, r, kv) / sv))
 
 
@@ -175,10 +165,13 @@ def ring_grid(patch: Patch, *, tool_radius_mm: float, scallop_mm: float, samples
     r, h, k = float(tool_radius_mm), float(scallop_mm), int(samples_per_line)
     check_concavity(patch, r)
     (u0, u1), (v0, v1) = patch.domain
+    claim, first, edge = (u0, u1, v0, v1), (u0, u1, v0, v1), np.zeros(4)
     start_u = start_v = None
     if strategy == "paper":
         start_u, start_v = global_steps(patch, r=r, h=h, samples=k)
-    rects, scallops, steps = [(u0, u1, v0, v1)], [], []
+    else:
+        first, edge = inset_rectangle(patch, r=r, h=h, samples=k)
+    rects, scallops, steps = [first], [], []
     while len(rects) < max_rings:
         a, b, c, d = rects[-1]
         if a >= b or c >= d:
@@ -201,4 +194,4 @@ def ring_grid(patch: Patch, *, tool_radius_mm: float, scallop_mm: float, samples
         scallops.append((wc, wb, wd, wa))
         steps.append((nc - c, b - nb, d - nd, na - a))
     return RingGrid(rects=np.array(rects, dtype=np.float64), side_scallop=np.array(scallops).reshape(-1, 4),
-                    side_steps=np.array(steps).reshape(-1, 4), strategy=strategy)
+                    side_steps=np.array(steps).reshape(-1, 4), strategy=strategy, claim=claim, edge_scallop=edge)

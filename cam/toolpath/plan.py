@@ -3,8 +3,9 @@
 `plan_job` is the whole `plan` stage without its files: part-frame surfaces and setups in, per setup
 the passes (tool tips, machine frame), the certified scallop bound of every patch and the linked move
 list out. The certificate of a patch is the largest predicted scallop of any gap between its rings
-(exact relation, checked on the real next line) or of any corner pocket, plus the largest chord error
-of its moves; by construction it does not exceed the target.
+(exact relation, checked on the real next line), of the material the first ring leaves on the edges
+of the claimed rectangle, or of any corner pocket, plus the largest chord error of its moves; by
+construction it does not exceed the target.
 """
 
 from __future__ import annotations
@@ -223,7 +224,7 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
             hollows.append(str(exc))
             continue
         path = ring_path(patch, grid.rects, r=r, corner_mm=CORNER_SHARE * h_s, excursions=strategy == "adaptive",
-                         spiral=strategy == "adaptive", check_cancel=check_cancel)
+                         spiral=strategy == "adaptive", claim=grid.claim, check_cancel=check_cancel)
         spacing = _spacing(patch, grid.rects, grid.side_steps)
         # A ball moved by δ moves the surface it cuts by at most δ; a normal line between passes meets
         # a ball at φ from its radius, sin φ ≤ (farthest point from a contact) / r, which is half the
@@ -237,7 +238,7 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
         pts = discretize(patch, path.uv, path.kind, r=r, tol=tol, lat_u=lat_u, lat_v=lat_v,
                          lateral_weight=sin_phi * grow if np.isfinite(grow) else 3.0)
         runs, lifts, lift_uv, drop_uv = _clear_path(index, pts.centre, pts.uv, r, step=max(r / 4, 0.1))
-        side = float(grid.side_scallop.max()) if grid.side_scallop.size else 0.0
+        side = float(max(grid.side_scallop.max(initial=0.0), grid.edge_scallop.max()))
         corner = float(path.corner_scallop.max()) if path.corner_scallop.size else 0.0
         chord = float(pts.chord_error.max()) if pts.chord_error.size else 0.0
         bound = max(side, corner) + chord + ROUNDING_MM

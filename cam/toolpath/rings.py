@@ -1,10 +1,10 @@
 """Contour-parallel rings from the grid, their corner pockets, and the patch's one continuous parameter path.
 
 Order: outermost ring first. The first ring runs along the patch boundary — where the patch meets
-its neighbours at sharp edges — so the tool enters at the boundary, where an entry mark is hidden by
-the edge, and every later ring is reached by a short cutting move inward instead of a retract (a
-spiral turn in our plan, a diagonal link in the paper's rings); the path ends in the middle of the
-patch, from where the retract leaves no mark on an edge.
+its neighbours at sharp edges — on it (the paper's) or half an interval inside (ours, `edge.py`), so
+the tool enters next to the edge and every later ring is reached by a short cutting move inward
+instead of a retract (a spiral turn in our plan, a diagonal link in the paper's rings); the path ends
+in the middle of the patch, from where the retract leaves no mark on an edge.
 
 Between ring k and ring k + 1 the sides are covered by the grid's checked steps; what is left is the
 pocket at each corner, between the outer corner P and the inner corner Q. There the highest material
@@ -14,7 +14,8 @@ twice (maximising the distance instead misses pockets whose near side is convex)
 rings (the paper's, `spiral=False`) the link from ring k to ring k + 1 runs through the pocket of the
 start corner; our spiral turns instead (see `ring_path`). At the other corners a short excursion from
 Q towards P (and back) is added when the pocket would exceed its bound — the paper instead shrinks the
-whole side step (`shrink_for_corners`, used by its baseline).
+whole side step (`shrink_for_corners`, used by its baseline). A first ring inside the edges has such
+pockets too, between the claim's corner P, which no pass runs through, and its own corner Q.
 """
 
 from __future__ import annotations
@@ -54,13 +55,14 @@ def _nearest_on_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) ->
     return d[rows, j], foot[rows, j]
 
 
-def _paths_near_corner(patch, outer, inner, corner, extra):
-    """3D segments (a, b) of the contact paths around one corner: both rings' legs plus extra param segments."""
+def _paths_near_corner(patch, outer, inner, corner, extra, outer_cut=True):
+    """3D segments (a, b) of the contact paths around one corner: both rings' legs (the inner ring's alone
+    when outer_cut is False: the outer rectangle is then the claim's edge, not a pass) plus extra segments."""
     P, Q = _corner_point(outer, corner), _corner_point(inner, corner)
     du, dv = abs(Q[0] - P[0]), abs(Q[1] - P[1])
     sign = np.array([1.0 if corner[0] == 0 else -1.0, 1.0 if corner[1] == 0 else -1.0])
     pieces = []
-    for rect, base in ((outer, P), (inner, Q)):
+    for rect, base in ((outer, P), (inner, Q))[0 if outer_cut else 1:]:
         width, height = rect[1] - rect[0], rect[3] - rect[2]
         pieces.append((base, base + [sign[0] * min(3 * du + 1e-12, width), 0.0]))
         pieces.append((base, base + [0.0, sign[1] * min(3 * dv + 1e-12, height)]))
@@ -75,13 +77,14 @@ def _paths_near_corner(patch, outer, inner, corner, extra):
 
 
 def corner_scallop(patch: Patch, outer, inner, corner: tuple[int, int], *, r: float,
-                   extra: list = (), grid: int = 12) -> tuple[float, np.ndarray]:
+                   extra: list = (), grid: int = 12, outer_cut: bool = True) -> tuple[float, np.ndarray]:
     """Scallop bound (mm) in the pocket between ring `outer` and ring `inner` at `corner`, and its point (u, v).
 
     outer, inner: (u0, u1, v0, v1) ring rectangles; corner: (0|1, 0|1) = (u side, v side);
-    extra: further contact segments [(uv0, uv1), ...] in parameters (the link, an excursion).
+    extra: further contact segments [(uv0, uv1), ...] in parameters (the link, an excursion);
+    outer_cut=False: `outer` is the claim's edge, which no pass runs along.
     """
-    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra))
+    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut)
     lo, hi = np.minimum(P, Q), np.maximum(P, Q)
     if np.any(hi - lo <= 0):
         return 0.0, Q
@@ -121,17 +124,18 @@ def _material(patch: Patch, uv: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray
     return np.asarray(scallop_from_arc_gap(2 * rho, r, kappa), dtype=np.float64)
 
 
-def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: list = ()) -> tuple[float, float]:
+def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: list = (),
+              outer_cut: bool = True) -> tuple[float, float]:
     """Smallest fraction λ of the way from Q to P that an in-and-out excursion needs so the pocket holds h.
 
     Returns (λ, scallop bound with it); λ = 0 when the pocket already holds. The search runs on a
     fixed sample grid of the pocket (distances to the fixed paths computed once); the λ it finds is
     then confirmed with the refined `corner_scallop` and lengthened until that holds too.
     """
-    base, _ = corner_scallop(patch, outer, inner, corner, r=r, extra=extra)
+    base, _ = corner_scallop(patch, outer, inner, corner, r=r, extra=extra, outer_cut=outer_cut)
     if base <= h:
         return 0.0, base
-    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra))
+    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut)
     lo_uv, hi_uv = np.minimum(P, Q), np.maximum(P, Q)
     g = np.linspace(0.0, 1.0, 33)
     uu, vv = np.meshgrid(lo_uv[0] + g * (hi_uv[0] - lo_uv[0]), lo_uv[1] + g * (hi_uv[1] - lo_uv[1]), indexing="ij")
@@ -150,7 +154,8 @@ def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: 
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if pocket(mid) <= h else (mid, hi)
     while True:
-        val, _ = corner_scallop(patch, outer, inner, corner, r=r, extra=[*extra, (Q, Q + hi * (P - Q))])
+        val, _ = corner_scallop(patch, outer, inner, corner, r=r, extra=[*extra, (Q, Q + hi * (P - Q))],
+                                outer_cut=outer_cut)
         if val <= h or hi >= 1.0:
             return hi, val
         hi = min(1.0, hi * 1.1 + 0.02)
@@ -219,7 +224,7 @@ def _spiral_turn(patch: Patch, prev, rect, nxt, *, r: float, corner_mm: float, e
 
 
 def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, excursions: bool = True,
-              spiral: bool = False, check_cancel=None) -> RingPath:
+              spiral: bool = False, claim=None, check_cancel=None) -> RingPath:
     """Link the rings (outermost first) into one parameter path with corner excursions where needed.
 
     spiral=False closes every ring at its start corner and links it to the next along the diagonal of
@@ -229,7 +234,13 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
     of ring k and k + 1, whose gap the side check already holds over all of [u0, u1]) and each ring
     saves the diagonal link. The turn leaves a pocket of its own (`_spiral_turn`), bounded and given an
     excursion like the other corners.
+
+    claim: the rectangle (u0, u1, v0, v1) the rings finish (`RingGrid.claim`). When the first ring lies
+    inside it, the first ring's four corner pockets against the claim's corners are bounded and given
+    excursions too, and with spiral=True the first ring starts on its u0 side at the next ring's v0 line,
+    so that side is cut whole.
     """
+    inset = claim is not None and len(rects) > 0 and tuple(map(float, rects[0])) != tuple(map(float, claim))
     points: list[np.ndarray] = []
     kinds: list[int] = []
     corner_vals: list[float] = []
@@ -244,17 +255,19 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
         if check_cancel is not None:
             check_cancel()
         todo: dict[tuple[int, int], np.ndarray] = {}
-        if k > 0:
-            outer = tuple(rects[k - 1])
+        if k > 0 or inset:
+            cut = k > 0  # the outer rectangle is a ring, or else the claim's edge
+            outer = tuple(rects[k - 1]) if cut else tuple(claim)
             for corner in CORNERS:
                 P, Q = _corner_point(outer, corner), _corner_point(rect, corner)
-                if corner == (0, 0) and spiral:
+                link = cut and corner == (0, 0)
+                if link and spiral:
                     continue
-                if corner == (0, 0) or not excursions:
-                    extra = [(P, Q)] if corner == (0, 0) else []
-                    val, _ = corner_scallop(patch, outer, rect, corner, r=r, extra=extra)
+                if link or not excursions:
+                    val, _ = corner_scallop(patch, outer, rect, corner, r=r, extra=[(P, Q)] if link else [],
+                                            outer_cut=cut)
                 else:
-                    lam, val = excursion(patch, outer, rect, corner, r=r, h=corner_mm)
+                    lam, val = excursion(patch, outer, rect, corner, r=r, h=corner_mm, outer_cut=cut)
                     if lam > 0:
                         todo[corner] = Q + lam * (P - Q)
                 corner_vals.append(val)
@@ -262,6 +275,8 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
         turn = None
         if spiral and k + 1 < len(rects) and len(loop) == 5:
             loop[-1] = np.array([rect[0], rects[k + 1][2]], dtype=np.float64)
+            if k == 0 and inset:
+                loop.insert(0, loop[-1])
             if k > 0:
                 turn = _spiral_turn(patch, rects[k - 1], rect, rects[k + 1], r=r, corner_mm=corner_mm,
                                     excursions=excursions)
