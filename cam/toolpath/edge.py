@@ -65,12 +65,17 @@ def ray_capsule_entry(origin: np.ndarray, direction: np.ndarray, seg_a: np.ndarr
 
 def edge_scallop(patch: Patch, *, along: str, edge: float, line: float, lo: float, hi: float, r: float,
                  samples: int) -> np.ndarray:
-    """Material (mm, float64 (samples,)) the ring line `line` alone leaves on the edge iso-line `edge`.
+    """Material (mm, float64 (≥ samples,)) the ring line `line` alone leaves on the edge iso-line `edge`, at
+    `samples` even parameters and at the surface's knots between them.
 
     along 'u': both are lines v = const over u in [lo, hi]; along 'v': lines u = const over v.
     """
-    fe = iso_line_frame(patch, along, edge, np.linspace(lo, hi, samples))
-    fl = iso_line_frame(patch, along, line, np.linspace(lo, hi, CENTRES_PER_SAMPLE * samples))
+    # A C0 knot line (a border that turns a corner) puts a corner in both lines and a sharp peak of the
+    # material on the edge: its knots are sampled on both, wherever the uniform samples fall.
+    knots = np.unique(patch.surface.knots_u if along == "u" else patch.surface.knots_v)
+    knots = knots[(knots > lo) & (knots < hi)]
+    fe = iso_line_frame(patch, along, edge, np.union1d(np.linspace(lo, hi, samples), knots))
+    fl = iso_line_frame(patch, along, line, np.union1d(np.linspace(lo, hi, CENTRES_PER_SAMPLE * samples), knots))
     centres = fl.p + r * fl.n
     return ray_capsule_entry(fe.p, fe.n, centres[:-1], centres[1:], r)
 

@@ -187,5 +187,13 @@ class SubSurface:
     def control_points(self) -> np.ndarray:
         return self.base.control_points
 
+    @property
+    def knots_u(self) -> np.ndarray:
+        return self.base.knots_u
+
+    @property
+    def knots_v(self) -> np.ndarray:
+        return self.base.knots_v
+
     def evaluate(self, u: np.ndarray, v: np.ndarray, *, du: int = 0, dv: int = 0) -> np.ndarray:
         return self.base.evaluate(u, v, du=du, dv=dv)

@@ -247,14 +247,34 @@ def test_ray_capsule_entry_against_dense_balls():
 def test_edge_material_matches_the_reference_balls(surface):
     # What the first ring leaves on the patch edge against the reference material of 4001 balls on it.
     patch = Patch(1, surface)
-    q = np.linspace(0.0, 1.0, 32)
     for along, edge, line in (("u", 0.0, 0.06), ("v", 1.0, 0.95)):
         got = edge_scallop(patch, along=along, edge=edge, line=line, lo=0.0, hi=1.0, r=3.0, samples=32)
+        q = np.union1d(np.linspace(0.0, 1.0, 32), surface.knots_u if along == "u" else surface.knots_v)
         dense = np.linspace(0.0, 1.0, 4001)
         at = (lambda x, s: np.stack([x, np.full_like(x, s)], -1)) if along == "u" else (
             lambda x, s: np.stack([np.full_like(x, s), x], -1))
         ref = _material_left(patch, at(q, edge), at(dense, line), 3.0)
         assert 0.05 < got.min() and np.allclose(got, ref, rtol=0, atol=2e-5), along
+
+
+def test_edge_material_peaks_where_the_edge_turns_a_corner():
+    # A flat patch whose edge u = 0 turns a corner at a C0 knot line (v = 0.5): (0, 0) -> (-3, 8) -> (0, 16).
+    # The first ring, inset at u = 0.05, turns with it, and the apex of the edge lies farther from it than
+    # the rest: the material peaks sharply there, which none of 32 even samples hits. The knot is sampled
+    # too (without it 32 samples reported 0.2035 mm against 0.2292 mm left).
+    from cam.bspline import make_bspline_surface
+
+    y = np.array([0, 8 / 3, 16 / 3, 8, 32 / 3, 40 / 3, 16])
+    left = np.stack([-3 * (8 - np.abs(y - 8)) / 8, y, np.zeros_like(y)], -1)
+    right = np.stack([np.full_like(y, 20.0), y, np.zeros_like(y)], -1)
+    cp = np.stack([left + t * (right - left) for t in (0, 1 / 3, 2 / 3, 1)])
+    patch = Patch(1, make_bspline_surface(cp, np.array([0, 0, 0, 0, 1, 1, 1, 1.0]),
+                                          np.array([0, 0, 0, 0, 0.5, 0.5, 0.5, 1, 1, 1, 1.0])))
+    got = edge_scallop(patch, along="v", edge=0.0, line=0.05, lo=0.0, hi=1.0, r=3.0, samples=32)
+    q = np.linspace(0.0, 1.0, 801)
+    ref = _material_left(patch, np.stack([np.zeros_like(q), q], -1),
+                         np.stack([np.full(8001, 0.05), np.linspace(0.0, 1.0, 8001)], -1), 3.0)
+    assert got.max() == pytest.approx(ref.max(), abs=2e-5) and ref.max() > 1.1 * np.median(ref)
 
 
 def test_corner_pocket_bound_holds_where_the_near_side_is_convex():
