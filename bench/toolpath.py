@@ -52,7 +52,9 @@ def run_part(ids, surfaces, signs, setups, h, strategy, *, raster=False, raster_
     t0 = time.perf_counter()
     plan = plan_job(ids, surfaces, setups, tool_radius_mm=R, scallop_height_mm=h, strategy=strategy, signs=signs)
     t_plan = time.perf_counter() - t0
-    claims = {q["patch"]: tuple(q["region"]) for q in plan.partial}
+    claims: dict[int, list] = {}  # a patch finished in part may be claimed on several rectangles
+    for q in plan.partial:
+        claims.setdefault(q["patch"], []).append(tuple(q["region"]))
     area = {i: surface_area(s) for i, s in zip(ids, surfaces)}
     row = {"certified": plan.certified_scallop_mm, "max": 0.0, "gouge": 0.0, "length": 0.0, "air": 0.0, "retracts": 0,
            "t_plan": t_plan, "t_verify": 0.0, "never": 0.0, "unreach": 0.0, "samples": 0, "covered": 0.0,
@@ -61,8 +63,9 @@ def run_part(ids, surfaces, signs, setups, h, strategy, *, raster=False, raster_
     for sp in plan.setups:
         part = machine_patches(ids, surfaces, signs, sp.setup)
         mine = {q.patch for q in sp.patches}
-        machined = [Patch(p.id, sub_surface(p.surface, claims[p.id]), p.sign) if p.id in claims else p
-                    for p in part if p.id in mine]
+        machined = [q for p in part if p.id in mine for q in
+                    ([Patch(p.id, sub_surface(p.surface, box), p.sign) for box in claims[p.id]] if p.id in claims
+                     else [p])]
         if not machined:
             continue
         prog = parse_program(write_program(sp.moves, header={}))
@@ -75,9 +78,9 @@ def run_part(ids, surfaces, signs, setups, h, strategy, *, raster=False, raster_
         row["retracts"] += st["retracts"]
         row["t_verify"] += rep["time_s"]
         row["never"] += rep["uncut_area_mm2"]
-        row["machined"] += len(machined)
-        row["covered"] += sum(area[i] * (area_share(surfaces[ids.index(i)], claims[i]) if i in claims else 1.0)
-                              for i in mine)
+        row["machined"] += len(mine)
+        row["covered"] += sum(area[i] * (sum(area_share(surfaces[ids.index(i)], box) for box in claims[i])
+                                         if i in claims else 1.0) for i in mine)
         row["measure"].append((sp.setup, m))
         row["passes"].append((sp.setup, [q for pp in sp.patches for q in pp.passes]))
         if raster:
@@ -138,11 +141,13 @@ def end_to_end(name: str) -> dict | None:
         surf = json.loads((out / "surfaces.json").read_text())
         ids, surfaces = load_surfaces(out / "surfaces.json")
     area = {i: surface_area(s) for i, s in zip(ids, surfaces)}
-    part = {q["patch"]: q for q in tp["partial"]}
-    machined = [p["patch"] for st in tp["setups"] for p in st["patches"]]
-    covered = sum(area[i] * (part[i]["kept"] if i in part else 1.0) for i in machined)
+    kept: dict[int, float] = {}  # a patch finished in part may be claimed on several rectangles
+    for q in tp["partial"]:
+        kept[q["patch"]] = kept.get(q["patch"], 0.0) + q["kept"]
+    machined = list(dict.fromkeys(p["patch"] for st in tp["setups"] for p in st["patches"]))
+    covered = sum(area[i] * kept.get(i, 1.0) for i in machined)
     row.update(patches=len(ids), over=len(surf["over_tolerance"]), folded=len(surf.get("folded", [])),
-               machined=len(machined), partial=sum(i in part for i in machined), unmachined=len(tp["unmachined"]),
+               machined=len(machined), partial=sum(i in kept for i in machined), unmachined=len(tp["unmachined"]),
                coverage=covered / sum(area.values()), passed=verify["passed"], certified=verify["certified_scallop_mm"],
                max=verify["max_scallop_mm"], gouge=max(verify["max_gouge_mm"] or 0, verify["max_rapid_gouge_mm"] or 0),
                length=sum(s["stats"]["cut_length_mm"] for s in tp["setups"]),

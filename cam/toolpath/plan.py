@@ -31,6 +31,7 @@ GOUGE_TOL_MM = 1e-5
 ROUNDING_MM = 0.5e-4 * 3 ** 0.5  # 4 decimals per axis move a ball centre by at most this
 CORNER_SHARE = 0.97  # corner pockets are held a little under the side gaps, which then set the maximum
 MAX_REPLANS = 6
+BESIDE_SHARE = 0.1  # a strip beside a patch's planned rectangle is planned too when it holds this share of it
 
 
 class Unreachable(ValueError):
@@ -296,6 +297,33 @@ def _claim(surface, plan: PatchPlan, trimmed: Region | None) -> dict | None:
     return {"region": [float(x) for x in planned], "kept": area_share(surface, planned), "reason": "; ".join(reasons)}
 
 
+def _plan_beside(patch: Patch, region, whole_surface, index: SurfaceIndex, *, trimmed: Region | None,
+                 min_share: float = BESIDE_SHARE, **options) -> tuple[list[PatchPlan], list[dict]]:
+    """Plans and claims of the four strips of `patch` beside its planned rectangle `region` (left and right
+    of it over the whole height, below and above it over its width) that hold at least `min_share` of the
+    patch's area, each planned like a patch of its own and kept when its claim holds that share too.
+
+    A band the ball cannot reach across the middle of a patch (a face turned away from the tool, a rib
+    standing on it) leaves usable pieces on both sides, and one rectangle takes only the larger. A strip
+    the planner cannot finish is left without a word of its own: the first claim's reason covers it.
+    """
+    (u0, u1), (v0, v1) = patch.domain
+    a, b, c, d = region
+    plans, claims = [], []
+    for strip in ((u0, a, v0, v1), (b, u1, v0, v1), (a, b, v0, c), (a, b, d, v1)):
+        if strip[0] >= strip[1] or strip[2] >= strip[3] or area_share(whole_surface, strip) < min_share:
+            continue
+        try:
+            pp = plan_patch(Patch(patch.id, _restrict(patch.surface, strip), patch.sign), index, **options)
+        except (TooConcave, Unreachable, NotPlannable):
+            continue
+        claim = _claim(whole_surface, pp, trimmed)
+        if pp.passes and claim is not None and claim["kept"] >= min_share:
+            plans.append(pp)
+            claims.append({"patch": patch.id, **claim})
+    return plans, claims
+
+
 def _box(patch: Patch) -> tuple[float, float, float, float]:
     (u0, u1), (v0, v1) = patch.domain
     return (u0, u1, v0, v1)
@@ -489,6 +517,12 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
                 claim = _claim(whole[ids.index(p.id)], plans[-1], trimmed.get(p.id))
                 if claim is not None:
                     partial.append({"patch": p.id, **claim})
+                    more, claims = _plan_beside(p, plans[-1].region, whole[ids.index(p.id)], index,
+                                                trimmed=trimmed.get(p.id), r=r, h=h, chord_fraction=chord_fraction,
+                                                samples_per_line=samples_per_line, strategy=strategy,
+                                                reach_fraction=share, check_cancel=check_cancel)
+                    plans += more
+                    partial += claims
             done += 1
         plans = [pp for pp in plans if pp.passes]
         top = max(float(np.max(q.surface.control_points[..., 2])) for q in solid)

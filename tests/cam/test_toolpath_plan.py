@@ -350,15 +350,31 @@ def test_largest_rectangle_matches_brute_force():
         assert got is None or ok[got[0]:got[1] + 1, got[2]:got[3] + 1].all()
 
 
-def test_a_band_the_ball_cannot_reach_across_the_middle_keeps_the_larger_side():
+def test_a_band_the_ball_cannot_reach_across_the_middle_leaves_both_sides_machined():
     # A floor with a thin rib standing across it at x = 8: no rectangle spanning the rib is reachable, and
-    # every side of the floor runs into it; the larger part beyond the rib (x > 8 + r) is planned.
+    # every side of the floor runs into it. The larger part beyond the rib (x > 8 + r) is planned first,
+    # then the strip before it (x < 8 - r), each claimed on its own rectangle and verified on it.
     floor = analytic.plane(20.0, 16.0)
     rib = analytic.fit_grid(lambda u, v: np.stack([np.full_like(u, 8.0), 16 * u, 6 * v], -1), n=(4, 4))
     plan = plan_job([1, 2], [floor, rib], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
-    pp = next(p for s in plan.setups for p in s.patches if p.patch == 1)
-    u0, u1, v0, v1 = pp.region
+    first, second = [p for s in plan.setups for p in s.patches if p.patch == 1]
+    u0, u1, v0, v1 = first.region
     assert (u1, v0, v1) == (1.0, 0.0, 1.0) and (8 + 3.0) / 20 <= u0 < (8 + 3.0) / 20 + 0.01
+    u0, u1, v0, v1 = second.region
+    assert (u0, v0, v1) == (0.0, 0.0, 1.0) and (8 - 3.0) / 20 - 0.01 < u1 <= (8 - 3.0) / 20
+    claims = [q for q in plan.partial if q["patch"] == 1]
+    assert [q["region"] for q in claims] == [list(first.region), list(second.region)]
+    assert sum(q["kept"] for q in claims) == pytest.approx((20 - 6) / 20, abs=0.02)
+    from cam.gcode import parse_program, write_program
+    from cam.toolpath.region import sub_surface
+    from cam.verify import measure_program
+
+    sp = plan.setups[0]
+    machined = [Patch(1, sub_surface(floor, tuple(q["region"]))) for q in claims]
+    m = measure_program(parse_program(write_program(sp.moves, header={})), machined, [Patch(1, floor), Patch(2, rib)],
+                        tool_radius_mm=3.0, target_mm=0.16, interval_mm=float(flat_spacing(0.16, 3.0)))
+    assert m.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= 0.16
+    assert m.report["fraction_never_reached"] == 0 and m.report["max_gouge_mm"] < 1e-3
 
 
 def test_move_clearance_finds_a_dip_between_its_samples():

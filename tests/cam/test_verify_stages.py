@@ -85,3 +85,31 @@ def test_a_partly_finished_patch_is_claimed_and_verified_on_its_claim(tmp_path):
         "program.nc": out["program.nc"]}))["verify.json"].read_text())
     assert report["passed"] and report["max_scallop_mm"] <= report["certified_scallop_mm"] <= 0.16
     assert report["max_gouge_mm"] < 1e-3
+
+
+def test_a_patch_claimed_on_two_rectangles_is_verified_on_both(tmp_path):
+    # A floor with a rib standing across it: the ball finishes the floor on both sides of the rib, two
+    # claims of one patch in setup.json; verify measures the program on exactly those two rectangles.
+    from cam.toolpath import analytic
+    from worker.stages.plan import run_plan
+    from worker.stages.verify import run_verify
+
+    floor = analytic.plane(20.0, 16.0)
+    rib = analytic.fit_grid(lambda u, v: np.stack([np.full_like(u, 8.0), 16 * u, 6 * v], -1), n=(4, 4))
+    (tmp_path / "surfaces.json").write_text(json.dumps({"surfaces": [
+        {"patch": 1, **floor.to_json(), "max_error_mm": 0.0}, {"patch": 2, **rib.to_json(), "max_error_mm": 0.0}]}))
+    (tmp_path / "setup.json").write_text(json.dumps({"setups": [{"id": 1, "rotation": np.eye(3).tolist(),
+                                                                 "translation": [0, 0, 0]}]}))
+    out = run_plan(_ctx(tmp_path, "plan", {"surfaces.json": tmp_path / "surfaces.json",
+                                           "setup.json": tmp_path / "setup.json"}))
+    entry = json.loads(out["setup.json"].read_text())["setups"][0]
+    claims = [q for q in entry["partial"] if q["patch"] == 1]
+    assert len(claims) == 2 and entry["patches"].count(1) == 1
+    report = json.loads(run_verify(_ctx(tmp_path, "verify", {
+        "surfaces.json": tmp_path / "surfaces.json", "setup.json": out["setup.json"],
+        "program.nc": out["program.nc"]}))["verify.json"].read_text())
+    assert report["passed"] and report["max_scallop_mm"] <= report["certified_scallop_mm"] <= 0.16
+    # Every sample of both claims is reached: the rectangle before the rib is machined, not left over.
+    assert report["setups"][0]["fraction_never_reached"] == 0 and report["uncut_area_mm2"] == 0
+    assert report["max_gouge_mm"] < 1e-3
+    assert [x["patch"] for x in report["setups"][0]["patches"]].count(1) == 2  # each claim measured

@@ -99,7 +99,7 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
     writer.writerow(["setup", "patch", "pass", "x", "y", "z"])
     setups_json, unmachined = [], list(plan.unmachined)
     for k, sp in enumerate(plan.setups):
-        patch_ids = [pp.patch for pp in sp.patches]
+        patch_ids = list(dict.fromkeys(pp.patch for pp in sp.patches))  # a patch on several rectangles once
         text = write_program(sp.moves, dialect=dialect, header=header(ctx, plan, sp.setup.id, patch_ids, dialect),
                              tool_number=tool["tool_number"], spindle_rpm=tool["spindle_rpm"],
                              feed_mm_min=tool["feed_mm_min"], plunge_mm_min=tool["plunge_mm_min"],

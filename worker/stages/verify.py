@@ -57,11 +57,14 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
         certified = float(certified.split()[0]) if certified else None
         part = machine_patches(ids, surfaces, signs, setup)
         machined = [p for p in part if p.id in set(entry["patches"])]
-        # A patch the planner finishes only in part is held to its claim on that rectangle alone.
+        # A patch the planner finishes only in part is held to its claims, on those rectangles alone.
         try:
-            claims = {int(q["patch"]): tuple(float(x) for x in q["region"]) for q in entry.get("partial") or []}
-            machined = [Patch(p.id, sub_surface(p.surface, claims[p.id]), p.sign) if p.id in claims else p
-                        for p in machined]
+            claims: dict[int, list] = {}
+            for q in entry.get("partial") or []:
+                claims.setdefault(int(q["patch"]), []).append(tuple(float(x) for x in q["region"]))
+            machined = [q for p in machined for q in
+                        ([Patch(p.id, sub_surface(p.surface, box), p.sign) for box in claims[p.id]]
+                         if p.id in claims else [p])]
         except (KeyError, TypeError, ValueError) as exc:
             raise StageError(f"setup {setup.id} in setup.json has a 'partial' entry that is not a parameter "
                              f"rectangle inside its patch: {exc}") from exc
