@@ -8,9 +8,9 @@ in the middle of the patch, from where the retract leaves no mark on an edge.
 
 Between ring k and ring k + 1 the sides are covered by the grid's checked steps; what is left is the
 pocket at each corner, between the outer corner P and the inner corner Q. There the highest material
-is found numerically: at each sample the ball of the nearest contact leaves, by the exact relation at
-the normal curvature towards it, at most a known height; that height is maximised on a grid refined
-twice (maximising the distance instead misses pockets whose near side is convex). With concentric
+is found numerically: at each sample the material the balls swept along both rings' legs leave (the
+first entry of the normal ray into them, exact for those paths) is maximised on a grid refined twice
+(maximising the distance instead misses pockets whose near side is convex). With concentric
 rings (the paper's, `spiral=False`) the link from ring k to ring k + 1 runs through the pocket of the
 start corner; our spiral turns instead (see `ring_path`). At the other corners a short excursion from
 Q towards P (and back) is added when the pocket would exceed its bound — the paper instead shrinks the
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.geometry import Patch, frame, normal_curvature, principal_curvatures
-from cam.toolpath.scallop import scallop_from_arc_gap
+from cam.toolpath.edge import ray_capsule_entry
+from cam.toolpath.geometry import Patch, frame
 
 __all__ = ["RingPath", "corner_scallop", "ring_path", "shrink_for_corners"]
 
@@ -43,21 +43,10 @@ def _segment_points(q0, q1, n) -> np.ndarray:
     return q0[None] * (1 - t) + q1[None] * t
 
 
-def _nearest_on_segments(x: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance (n,) from each x (n, 3) to the nearest of the segments (m, 3)–(m, 3), and that foot (n, 3)."""
-    ab = seg_b - seg_a
-    t = np.einsum("nmk,mk->nm", x[:, None, :] - seg_a[None], ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300)
-    t = np.clip(t, 0.0, 1.0)
-    foot = seg_a[None] + t[..., None] * ab[None]
-    d = np.linalg.norm(foot - x[:, None, :], axis=-1)
-    j = np.argmin(d, axis=1)
-    rows = np.arange(len(x))
-    return d[rows, j], foot[rows, j]
-
-
-def _paths_near_corner(patch, outer, inner, corner, extra, outer_cut=True):
-    """3D segments (a, b) of the contact paths around one corner: both rings' legs (the inner ring's alone
-    when outer_cut is False: the outer rectangle is then the claim's edge, not a pass) plus extra segments."""
+def _paths_near_corner(patch, outer, inner, corner, extra, outer_cut=True, r=0.0):
+    """Segments (a, b) of the ball-centre paths (contact + r n) around one corner: both rings' legs (the inner
+    ring's alone when outer_cut is False: the outer rectangle is then the claim's edge, not a pass) plus extra
+    parameter segments."""
     P, Q = _corner_point(outer, corner), _corner_point(inner, corner)
     du, dv = abs(Q[0] - P[0]), abs(Q[1] - P[1])
     sign = np.array([1.0 if corner[0] == 0 else -1.0, 1.0 if corner[1] == 0 else -1.0])
@@ -70,9 +59,10 @@ def _paths_near_corner(patch, outer, inner, corner, extra, outer_cut=True):
     a_list, b_list = [], []
     for q0, q1 in pieces:
         uv = _segment_points(np.asarray(q0, float), np.asarray(q1, float), 25)
-        p = patch.surface.evaluate(uv[:, 0], uv[:, 1])
-        a_list.append(p[:-1])
-        b_list.append(p[1:])
+        fr = frame(patch, uv[:, 0], uv[:, 1])
+        c = fr.p + r * fr.n
+        a_list.append(c[:-1])
+        b_list.append(c[1:])
     return np.concatenate(a_list), np.concatenate(b_list), P, Q
 
 
@@ -84,7 +74,7 @@ def corner_scallop(patch: Patch, outer, inner, corner: tuple[int, int], *, r: fl
     extra: further contact segments [(uv0, uv1), ...] in parameters (the link, an excursion);
     outer_cut=False: `outer` is the claim's edge, which no pass runs along.
     """
-    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut)
+    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut, r)
     lo, hi = np.minimum(P, Q), np.maximum(P, Q)
     if np.any(hi - lo <= 0):
         return 0.0, Q
@@ -104,24 +94,14 @@ def corner_scallop(patch: Patch, outer, inner, corner: tuple[int, int], *, r: fl
 
 
 def _material(patch: Patch, uv: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray, r: float) -> np.ndarray:
-    """Material (mm) the ball at the nearest contact leaves at each point uv (n, 2): the exact relation at
-    twice the distance, with the normal curvature towards that contact. It bounds the material the paths
-    leave there from above (any one ball does). Its maximum, not that of the distance, is the pocket's
-    bound: a slightly nearer contact across a convex direction can leave more than the farthest point."""
+    """Material (mm) the balls swept along the centre segments (m, 3) leave at each point uv (n, 2): the first
+    entry of the point's normal ray into them (`edge.ray_capsule_entry`), exact for those paths.
+
+    Before, one ball at the nearest contact stood in, by the exact relation at twice the distance with the
+    normal curvature towards it: on a small patch curved one way between the point and the contact and
+    another way at the point, that said 0.0096 mm where 0.0253 mm was left."""
     fr = frame(patch, uv[:, 0], uv[:, 1])
-    rho, foot = _nearest_on_segments(fr.p, seg_a, seg_b)
-    d = foot - fr.p
-    basis = np.stack([fr.su, fr.sv], axis=-1)  # (n, 3, 2)
-    gram = np.einsum("nki,nkj->nij", basis, basis)
-    rhs = np.einsum("nki,nk->ni", basis, d)
-    det = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] ** 2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        du = (gram[:, 1, 1] * rhs[:, 0] - gram[:, 0, 1] * rhs[:, 1]) / det
-        dv = (gram[:, 0, 0] * rhs[:, 1] - gram[:, 0, 1] * rhs[:, 0]) / det
-        kappa = normal_curvature(fr, du, dv)
-    _, kmax = principal_curvatures(fr)
-    kappa = np.where(np.isfinite(kappa), kappa, kmax)
-    return np.asarray(scallop_from_arc_gap(2 * rho, r, kappa), dtype=np.float64)
+    return ray_capsule_entry(fr.p, fr.n, seg_a, seg_b, r)
 
 
 def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: list = (),
@@ -135,19 +115,17 @@ def excursion(patch: Patch, outer, inner, corner, *, r: float, h: float, extra: 
     base, _ = corner_scallop(patch, outer, inner, corner, r=r, extra=extra, outer_cut=outer_cut)
     if base <= h:
         return 0.0, base
-    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut)
+    seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut, r)
     lo_uv, hi_uv = np.minimum(P, Q), np.maximum(P, Q)
     g = np.linspace(0.0, 1.0, 33)
     uu, vv = np.meshgrid(lo_uv[0] + g * (hi_uv[0] - lo_uv[0]), lo_uv[1] + g * (hi_uv[1] - lo_uv[1]), indexing="ij")
-    x = patch.surface.evaluate(uu.ravel(), vv.ravel())
-    rho_base, _ = _nearest_on_segments(x, seg_a, seg_b)
-    _, kmax = principal_curvatures(frame(patch, uu.ravel(), vv.ravel()))
-    kmax = float(np.max(kmax))
+    fx = frame(patch, uu.ravel(), vv.ravel())
+    left_base = ray_capsule_entry(fx.p, fx.n, seg_a, seg_b, r)
 
     def pocket(lam: float) -> float:
-        e = patch.surface.evaluate(*_segment_points(Q, Q + lam * (P - Q), 9).T)
-        rho = np.minimum(rho_base, _nearest_on_segments(x, e[:-1], e[1:])[0])
-        return float(scallop_from_arc_gap(2 * rho.max(), r, kmax))
+        fe = frame(patch, *_segment_points(Q, Q + lam * (P - Q), 9).T)
+        e = fe.p + r * fe.n
+        return float(np.minimum(left_base, ray_capsule_entry(fx.p, fx.n, e[:-1], e[1:], r)).max())
 
     lo, hi = 0.0, 1.0
     for _ in range(10):

@@ -292,6 +292,26 @@ def test_corner_pocket_bound_holds_where_the_near_side_is_convex():
     assert left.max() <= bound and bound <= 1.1 * left.max()
 
 
+@pytest.mark.parametrize("corner", [(0, 0), (1, 1)])
+def test_corner_pocket_at_the_claims_corner_against_the_reference_balls(corner):
+    # The first ring inside a small, tightly curved patch: the pocket between the claim's corner (no pass
+    # runs there) and the ring's corner. The bound once came from one ball at the nearest contact by the
+    # circle relation, which on this dome said 0.2016 mm at (0, 0) where 0.2143 mm is left.
+    patch = Patch(1, analytic.paraboloid(4.0, 4.0))
+    claim, ring = (0.0, 1.0, 0.0, 1.0), (0.15, 0.8, 0.12, 0.85)
+    bound, _ = corner_scallop(patch, claim, ring, corner, r=3.0, outer_cut=False)
+    a, b, c, d = ring
+    Q = np.array([(a, b)[corner[0]], (c, d)[corner[1]]])
+    P = np.array([float(corner[0]), float(corner[1])])
+    t = np.linspace(0.0, 1.0, 2001)[:, None]
+    legs = [(Q, np.array([(b, a)[corner[0]], Q[1]])), (Q, np.array([Q[0], (d, c)[corner[1]]]))]
+    contacts = np.concatenate([p * (1 - t) + q * t for p, q in legs])
+    lo, hi = np.minimum(P, Q), np.maximum(P, Q)
+    uu, vv = np.meshgrid(np.linspace(lo[0], hi[0], 41), np.linspace(lo[1], hi[1], 41), indexing="ij")
+    left = _material_left(patch, np.stack([uu.ravel(), vv.ravel()], -1), contacts, 3.0)
+    assert left.max() * (1 - 1e-6) <= bound <= 1.01 * left.max()
+
+
 def test_spiral_turns_replace_the_diagonal_links_shorter_and_within_the_bound():
     cyl = Patch(1, analytic.cylinder(20.0, 10.0, 40.0))
     grid = ring_grid(cyl, tool_radius_mm=3.0, scallop_mm=0.144)
