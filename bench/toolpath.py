@@ -227,7 +227,10 @@ def line(name, h, a, p):
     rast = (f"{rs['max'] / h:.4f}{'' if rs['met'] else ' (not met)'}", f"{rs['gouge']:.1e}", f"{rs['length']:.0f}",
             f"{_ratio(a['length'], rs['length']):.3f}", f"{rs['stepover']:.3f}", f"{rs['air']:.0f}", f"{rs['retracts']}",
             f"{rs['t_plan']:.1f}") if rs else ("-",) * 8
-    return (f"| {name} | {h} | {a['max'] / h:.4f}, {p['max'] / h:.4f}, {rast[0]} | {a['certified']:.5f} | {cov:.1%} "
+    # A program that leaves more than it certifies is marked in the table, not only in the notes.
+    over = lambda row: " (over its certificate)" if row["max"] > row["certified"] * (1 + 1e-6) else ""
+    return (f"| {name} | {h} | {a['max'] / h:.4f}{over(a)}, {p['max'] / h:.4f}{over(p)}, {rast[0]} "
+            f"| {a['certified']:.5f} | {cov:.1%} "
             f"| {a['gouge']:.1e}, {p['gouge']:.1e}, {rast[1]} | {a['length']:.0f} | {p['length']:.0f} "
             f"| {_ratio(a['length'], p['length']):.3f} "
             f"| {_ratio(_ratio(a['length'], a['covered']), _ratio(p['length'], p['covered'])):.3f} | {rast[2]} | {rast[3]} | {rast[4]} | {a['air']:.0f}, {rast[5]} "
