@@ -3,8 +3,8 @@
 
 OpenCAMLib (LGPL, bench-only) drops a ball end mill onto a triangulation of every surface of the setup
 (so the raster cannot cut a neighbour), along lines of constant y. A contact point counts for a patch when
-it lies over that patch's claimed parameter rectangle (its footprint seen along the tool axis); each run
-of such points (sampled finely, so the last one stands within a sample of the border) is one pass. Straight
+it lies over that patch's claimed parameter rectangle (its footprint seen along the tool axis). The lines
+start half a step inside the footprint, like our first ring. Each run of such points (sampled finely, so the last one stands within a sample of the border) is one pass. Straight
 moves between drop positions are thinned only where the tool-tip polyline stays within THIN_MM of the
 dropped positions: on a convex pass a longer chord would dip into the part. The stepover search starts at
 the flat-plane stepover for the target, widens by 10 % while the verified maximum over the claimed rectangles
@@ -96,12 +96,15 @@ def raster(tris: np.ndarray, machined: list[Patch], *, r: float, stepover_mm: fl
     for p in machined:
         poly = footprint(p)
         (x0, y0), (x1, y1) = poly.vertices.min(axis=0), poly.vertices.max(axis=0)
-        # Lines at both borders (a hair inside, where a ball on a flat border still touches the patch),
-        # evenly between, and on beyond the footprint: on a slope the ball touches uphill of its line.
+        # Lines evenly spaced with the first and last half a step inside the borders (as our planner's first
+        # ring: on a flat border that leaves the scallop of a full step), and on beyond the footprint at
+        # the stepover: on a slope the ball touches uphill of its line. The footprint of a wall seen along
+        # the axis is a sliver, so the lines beyond are spaced by the stepover, not by the inner step.
         n = max(int(np.ceil((y1 - y0) / stepover_mm)), 1)
-        eps, step = 1e-4 * (y1 - y0), (y1 - y0) / n
-        out_k = np.arange(1, int(np.ceil(r / step)) + 1)
-        ys = np.concatenate([y0 + eps - out_k[::-1] * step, np.linspace(y0 + eps, y1 - eps, n + 1), y1 - eps + out_k * step])
+        step = (y1 - y0) / n
+        inner = y0 + (np.arange(n) + 0.5) * step
+        out_k = np.arange(1, int(np.ceil(r / stepover_mm)) + 1) * stepover_mm
+        ys = np.concatenate([inner[0] - out_k[::-1], inner, inner[-1] + out_k])
         xs = np.arange(x0 - r, x1 + r + sample_mm, sample_mm)
         passes = []
         for k, y in enumerate(ys):
@@ -143,7 +146,8 @@ def measure_raster(tris, machined: list[Patch], part: list[Patch], *, r: float, 
     st, rep = moves.stats(), m.report
     return {"stepover": stepover_mm, "max": rep["max_scallop_mm"] or 0.0, "length": st["cut_length_mm"],
             "air": st["air_length_mm"], "retracts": st["retracts"], "reached": 1 - rep["fraction_never_reached"],
-            "over": rep["fraction_over_target"], "gouge": max(rep["max_gouge_mm"], rep["max_rapid_gouge_mm"]),
+            "over": rep["fraction_over_target"], "uncut": rep["uncut_area_mm2"],
+            "gouge": max(rep["max_gouge_mm"], rep["max_rapid_gouge_mm"]),
             "t_plan": t_plan}
 
 
