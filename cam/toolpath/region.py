@@ -43,9 +43,13 @@ def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = 65)
     r = float(tool_radius_mm)
     folded, uu, vv = fold_mask(patch.surface, samples=samples)
     fr = frame(patch, uu, vv)
-    kmin, _ = principal_curvatures(fr)
-    hollow = ~fits_concave(kmin, r) & ~folded  # a fold's curvature is no hollow
-    bad = folded | hollow
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kmin, _ = principal_curvatures(fr)
+    # Where S_u x S_v vanishes (a collapsed corner) there is no normal to offset along and no curvature:
+    # such a sample is left out for that, and neither it nor a fold counts as a hollow.
+    degenerate = ~np.isfinite(kmin) & ~folded
+    hollow = ~fits_concave(kmin, r) & ~folded & ~degenerate
+    bad = folded | hollow | degenerate
     area = np.sqrt(np.maximum(fr.e * fr.g - fr.f ** 2, 0.0))
     total = float(area.sum()) or 1.0
     if not bad.any():
@@ -53,11 +57,11 @@ def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = 65)
         return Region((u0, u1, v0, v1), 1.0, "")
     best = largest_clear_rectangle(bad, area)
     if best is None:
-        return Region(None, 0.0, _reason(patch, folded, hollow, kmin, fr, r))
+        return Region(None, 0.0, _reason(patch, folded, hollow, degenerate, kmin, fr, r))
     i0, i1, j0, j1 = best
     kept = float(area[i0:i1 + 1, j0:j1 + 1].sum()) / total
     box = (float(uu[i0, 0]), float(uu[i1, 0]), float(vv[0, j0]), float(vv[0, j1]))
-    return Region(box, kept, _reason(patch, folded, hollow, kmin, fr, r))
+    return Region(box, kept, _reason(patch, folded, hollow, degenerate, kmin, fr, r))
 
 
 def largest_clear_rectangle(bad: np.ndarray, weight: np.ndarray, *, min_span: int = 2
@@ -94,8 +98,12 @@ def largest_clear_rectangle(bad: np.ndarray, weight: np.ndarray, *, min_span: in
     return out
 
 
-def _reason(patch: Patch, folded, hollow, kmin, fr, r: float) -> str:
+def _reason(patch: Patch, folded, hollow, degenerate, kmin, fr, r: float) -> str:
     parts = []
+    if degenerate.any():
+        i = np.unravel_index(np.argmax(degenerate), degenerate.shape)
+        parts.append(f"its fitted surface is degenerate (S_u x S_v vanishes, so there is no normal) near "
+                     f"{np.round(fr.p[i], 3).tolist()}: that point is left out")
     if folded.any():
         i = np.unravel_index(np.argmax(folded), folded.shape)
         parts.append(f"its fitted surface folds over itself ({folded.mean():.1%} of it, near "

@@ -174,6 +174,24 @@ def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
     assert tips[:, 0].max() <= float(lip.evaluate(np.array([region.box[1]]), np.array([0.5]))[0, 0]) + 1e-6
 
 
+def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
+    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+    from cam.toolpath.region import finishable_region
+
+    g = np.linspace(0, 10, 6)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    P = np.stack([X, Y, np.zeros_like(X)], -1)
+    P[1, 0] = P[0, 0]  # S_u vanishes at (0, 0) only: the plane's normal is undefined at that one point
+    k = clamped_uniform_knots(6)
+    flat = make_bspline_surface(P, k, k)
+    region = finishable_region(Patch(5, flat), 3.0)
+    # A plane has no hollow: the corner sample is left out (no normal to offset along there), and the
+    # reason names the degenerate corner, not a concave radius of 0 mm.
+    assert region.box is not None and 0.95 < region.kept < 1.0
+    assert "concave" not in region.reason and "degenerate" in region.reason
+    assert "[0.0, 0.0, 0.0]" in region.reason
+
+
 def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch):
     import cam.toolpath.plan as plan_module
     from cam.toolpath.geometry import NotPlannable
