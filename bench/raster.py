@@ -3,14 +3,15 @@
 
 OpenCAMLib (LGPL, bench-only) drops a ball end mill onto a triangulation of every surface of the setup
 (so the raster cannot cut a neighbour), along lines of constant y. A contact point counts for a patch when
-it lies over that patch's claimed parameter rectangle (its footprint seen along the tool axis). The lines
-start half a step inside the footprint, like our first ring. Each run of such points (sampled finely, so the last one stands within a sample of the border) is one pass. Straight
-moves between drop positions are thinned only where the tool-tip polyline stays within THIN_MM of the
-dropped positions: on a convex pass a longer chord would dip into the part. The stepover search starts at
-the flat-plane stepover for the target, widens by 10 % while the verified maximum over the claimed rectangles
-stays under the target and narrows by sqrt(target / maximum) (at least 10 %) while it is over; it keeps the
-widest stepover that met the target. Verify measures material up to a quarter of r: a maximum of r / 4 means
-at least that much is left.
+it lies over that patch's claimed parameter rectangle (its footprint seen along the tool axis). The first and
+last lines are inset by half a step along the surface, like our first ring, from the lines whose ball touches
+the border (on a wall, not at all). Each run of such points (sampled finely, so the last one stands within a
+sample of the border) is one pass. Straight moves between drop positions are thinned only where the tool-tip
+polyline stays within THIN_MM of the dropped positions: on a convex pass a longer chord would dip into the
+part. The stepover search starts at the flat-plane stepover for the target, widens by 10 % while the verified
+maximum over the claimed rectangles stays under the target and narrows by sqrt(target / maximum) (at least
+10 %) while it is over; it keeps the widest stepover that met the target. Verify measures material up to a
+quarter of r: a maximum of r / 4 means at least that much is left.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from matplotlib.path import Path as Polygon
 from opencamlib import ocl
 
 from cam.gcode import parse_program, write_program
-from cam.toolpath.geometry import Patch
+from cam.toolpath.geometry import Patch, frame
 from cam.toolpath.link import link_passes
 from cam.toolpath.scallop import flat_spacing
 from cam.verify import measure_program
@@ -51,16 +52,42 @@ def _stl(tris: np.ndarray) -> ocl.STLSurf:
     return surf
 
 
-def footprint(patch: Patch, samples: int = 64) -> Polygon:
-    """The claimed rectangle's border seen along the tool axis, as a closed xy polygon, drawn a hair
-    inside: a ball hanging over the border touches it exactly there, and such a drop is not on the patch."""
+def _border_uv(patch: Patch, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters round the claimed rectangle's border, a hair inside: a ball hanging over the border
+    touches it exactly there, and such a drop is not on the patch."""
     (u0, u1), (v0, v1) = patch.domain
     du, dv = 1e-5 * (u1 - u0), 1e-5 * (v1 - v0)
     u0, u1, v0, v1 = u0 + du, u1 - du, v0 + dv, v1 - dv
     t = np.linspace(0, 1, samples, endpoint=False)
     u = np.concatenate([u0 + t * (u1 - u0), np.full(samples, u1), u1 - t * (u1 - u0), np.full(samples, u0)])
     v = np.concatenate([np.full(samples, v0), v0 + t * (v1 - v0), np.full(samples, v1), v1 - t * (v1 - v0)])
-    return Polygon(patch.surface.evaluate(u, v)[:, :2], closed=False)
+    return u, v
+
+
+def footprint(patch: Patch, samples: int = 64) -> Polygon:
+    """The claimed rectangle's border seen along the tool axis, as a closed xy polygon."""
+    return Polygon(patch.surface.evaluate(*_border_uv(patch, samples))[:, :2], closed=False)
+
+
+def border_lines(patch: Patch, r: float, stepover_mm: float, samples: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Where the raster's lines touch the footprint's lowest and highest border, and how steep it is there.
+
+    A dropped ball touches a point p with outward normal n from the line y = p_y + r n_y: on a slope that is
+    downhill of p, by up to r. Returns ((y_lo, y_hi), (c_lo, c_hi)): the median of that line over the border
+    points within a stepover of the footprint's lowest (highest) y, and the cos of the steepest slope across
+    the lines there (half a step in y is half a step times that along the surface; 0 on a wall facing y).
+    """
+    u, v = _border_uv(patch, samples)
+    f = frame(patch, u, v)
+    across = np.hypot(f.n[:, 1], f.n[:, 2])
+    # A border point whose normal has no y or z part (a wall facing x) does not slope across the lines.
+    cos = np.where(across > 1e-12, np.abs(f.n[:, 2]) / np.maximum(across, 1e-300), 1.0)
+    line = f.p[:, 1] + r * f.n[:, 1]
+    y0, y1 = f.p[:, 1].min(), f.p[:, 1].max()
+    lo, hi = f.p[:, 1] <= y0 + stepover_mm, f.p[:, 1] >= y1 - stepover_mm
+    # A collapsed corner has no normal (NaN): it touches from no particular line.
+    t0, t1 = (float(np.nanmedian(line[m])) if np.isfinite(line[m]).any() else y for m, y in ((lo, y0), (hi, y1)))
+    return np.array([t0, t1]), np.array([cos[lo].min(), cos[hi].min()])
 
 
 def _thin(tips: np.ndarray, tol: float) -> np.ndarray:
@@ -96,13 +123,20 @@ def raster(tris: np.ndarray, machined: list[Patch], *, r: float, stepover_mm: fl
     for p in machined:
         poly = footprint(p)
         (x0, y0), (x1, y1) = poly.vertices.min(axis=0), poly.vertices.max(axis=0)
-        # Lines evenly spaced with the first and last half a step inside the borders (as our planner's first
-        # ring: on a flat border that leaves the scallop of a full step), and on beyond the footprint at
-        # the stepover: on a slope the ball touches uphill of its line. The footprint of a wall seen along
-        # the axis is a sliver, so the lines beyond are spaced by the stepover, not by the inner step.
-        n = max(int(np.ceil((y1 - y0) / stepover_mm)), 1)
-        step = (y1 - y0) / n
-        inner = y0 + (np.arange(n) + 0.5) * step
+        # Lines evenly spaced, the first and last half a step inside the border as our first ring is. That
+        # is measured from the lines that touch the border (on a slope the ball touches uphill of its line)
+        # and along the surface across the lines (c: cos of the border's slope in y; on a wall the line
+        # touches the border). n lines span (n - 1 + (c0 + c1) / 2) steps; the fewest with a step within
+        # the stepover. Lines go on beyond at the stepover, where the border is not straight in x; a wall's
+        # footprint is a sliver, so those are spaced by the stepover, not by the inner step.
+        (t0, t1), (c0, c1) = border_lines(p, r, stepover_mm)
+        span, ends = t1 - t0, (c0 + c1) / 2
+        n = max(int(np.ceil(span / stepover_mm - ends + 1 - 1e-9)), 1)
+        if span > 0 and n - 1 + ends > 0:
+            step = span / (n - 1 + ends)
+            inner = t0 + c0 * step / 2 + np.arange(n) * step
+        else:
+            inner = np.array([(t0 + t1) / 2])
         out_k = np.arange(1, int(np.ceil(r / stepover_mm)) + 1) * stepover_mm
         ys = np.concatenate([inner[0] - out_k[::-1], inner, inner[-1] + out_k])
         xs = np.arange(x0 - r, x1 + r + sample_mm, sample_mm)
