@@ -77,10 +77,19 @@ def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -
                          uv=np.stack([uu[bad], vv[bad]], -1))
 
 
+# The smallest ball end mills sold are 0.1 mm across: a hollow tighter than that is no feature a ball can
+# be bought for, and on a fitted surface it is far more often a ripple of the fit than of the part.
+SMALLEST_BALL_RADIUS_MM = 0.05
+
+
 def concave_message(radius_mm: float, tool_radius_mm: float, point: np.ndarray) -> str:
     """What a user reads about a hollow the ball does not fit."""
-    return (f"concave radius of curvature {radius_mm:.3f} mm is not larger than the tool radius "
-            f"{tool_radius_mm:g} mm near {np.round(point, 3).tolist()}; use a smaller ball")
+    where = (f"concave radius of curvature {radius_mm:.3f} mm is not larger than the tool radius "
+             f"{tool_radius_mm:g} mm near {np.round(point, 3).tolist()}")
+    if radius_mm < SMALLEST_BALL_RADIUS_MM:
+        return (f"{where}; no ball end mill is that small: if the part has no such corner there, the fitted "
+                "surface ripples (surfaces.json gives each patch's fit error)")
+    return f"{where}; use a smaller ball"
 
 
 def _point_to_polyline(x: np.ndarray, poly: np.ndarray):
