@@ -38,7 +38,6 @@ def test_tool_too_large_for_a_hollow_is_reported_not_cut():
     assert not plan.unmachined and plan.setups[0].patches[0].certified_scallop_mm <= 0.05
 
 
-
 def test_a_hollow_tighter_than_any_ball_is_called_a_likely_ripple():
     # A 0.02 mm groove is no feature a ball end mill exists for; the user reads that the fit may ripple.
     with pytest.raises(TooConcave) as err:
@@ -47,6 +46,7 @@ def test_a_hollow_tighter_than_any_ball_is_called_a_likely_ripple():
     assert "use a smaller ball" not in str(err.value)
     with pytest.raises(TooConcave, match="use a smaller ball"):
         check_concavity(Patch(7, analytic.cylinder(0.5, 10.0, 100.0, concave=True)), 3.0)
+
 
 def _folded_plane():
     """A 10 x 10 mm plane with control columns at x = 0, 2.5, 9.5, 3, 10: x(u) turns back, an S-fold."""
