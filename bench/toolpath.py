@@ -213,7 +213,7 @@ def picture(name: str, row: dict, h: float) -> str:
 HEAD = ("| part | h mm | verified max / target (ours, paper, raster) | certified mm | covered | max gouge mm (ours, paper, "
         "raster) | path mm ours | paper | ours / paper | ours / paper per mm² covered | raster | ours / raster | raster stepover mm | air mm (ours, raster) "
         "| retracts (ours, raster) | reached (ours, raster) | plan s (ours, paper, raster) | verify s |")
-COLUMNS = 18
+COLUMNS = HEAD.count("|") - 1
 
 
 def _ratio(x, y):
