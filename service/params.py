@@ -38,6 +38,9 @@ class ReconstructParams(_Group):
     max_faces: int | None = Field(
         200_000, ge=1000, le=20_000_000, description="Cap on mesh_raw.ply's triangles: above it the surface is "
         "extracted on a coarser lattice (denoise and remesh time grow with the faces). None: no cap.")
+    sharpen: bool = Field(
+        True, description="Restore the sharp edges marching cubes bevels: bevel vertices move onto the two face "
+        "planes around them and the edges between are split at the crease. False: plain marching cubes.")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the sampling and initialisation.")
 
 

@@ -16,11 +16,12 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from cam.reconstruct.extract import extract_surface
+from cam.reconstruct.extract import extract_surface, is_watertight
 from cam.reconstruct.fields import GridField, IGRNetwork
 from cam.reconstruct.normals import check_normals, estimate_normals
 from cam.reconstruct.presets import resolve_options
 from cam.reconstruct.prior import plane_distance
+from cam.reconstruct.sharpen import sharpen_creases
 from cam.reconstruct.train import TrainSettings, train_igr
 
 __all__ = ["Reconstruction", "ReconstructionCanceled", "reconstruct_surface"]
@@ -62,6 +63,7 @@ def reconstruct_surface(
     normal_weight: float = 1.0,
     normals_k: int = 16,
     max_faces: int | None = None,
+    sharpen: bool = True,
     seed: int | np.random.Generator = 0,
     threads: int | None = None,
     device: str = "auto",
@@ -96,6 +98,12 @@ def reconstruct_surface(
         more, the surface is extracted again on a coarser lattice sized to fit
         (a closed mesh either way; the later stages' cost grows with the faces).
         None: no cap.
+    sharpen
+        Restore the sharp edges that marching cubes bevels over about one cell
+        (:func:`~cam.reconstruct.sharpen.sharpen_creases`): bevel vertices move
+        onto the two face planes and the edges between them are split at the
+        crease. The field itself is what IGR trained; this only places the
+        extracted mesh's vertices. False: plain marching cubes.
     seed
         Seed (or a Generator that draws one); the same seed gives the same mesh on CPU.
     threads
@@ -205,16 +213,18 @@ def reconstruct_surface(
         t = time.perf_counter()
         if progress is not None:
             progress(0.92, "extracting the surface")
-        verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=opts["resolution"],
-                                                    points=unit, poll=poll)
-        mesh_report["resolution"] = opts["resolution"]
-        if max_faces is not None and len(faces) > max_faces:
+        field_cell = field.cell[-1] if isinstance(field, GridField) else 0.0
+        resolution = opts["resolution"]
+        for _ in range(4):
+            verts, faces, mesh_report = _extract(evaluate, lo, hi, resolution, unit, field_cell, sharpen,
+                                                 workers, poll)
+            if max_faces is None or len(faces) <= max_faces or resolution == 16:
+                break
             # Faces grow with the square of the resolution; 0.97 leaves room for the estimate's error.
-            coarser = max(16, int(opts["resolution"] * np.sqrt(max_faces / len(faces)) * 0.97))
+            coarser = max(16, min(resolution - 1, int(resolution * np.sqrt(max_faces / len(faces)) * 0.97)))
             if progress is not None:
-                progress(0.96, f"{len(faces)} faces at {opts['resolution']} cells; extracting at {coarser}")
-            verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=coarser, points=unit, poll=poll)
-            mesh_report["resolution"] = coarser
+                progress(0.96, f"{len(faces)} faces at {resolution} cells; extracting at {coarser}")
+            resolution = coarser
         timings["extract"] = time.perf_counter() - t
     finally:
         torch.set_num_threads(previous_threads)
@@ -228,7 +238,7 @@ def reconstruct_surface(
         "normals": normals_report,
         "preset": preset,
         "options": {**opts, "eikonal_weight": eikonal_weight, "normal_weight": normal_weight,
-                    "normals_k": normals_k, "max_faces": max_faces, "seed": seed},
+                    "normals_k": normals_k, "max_faces": max_faces, "sharpen": sharpen, "seed": seed},
         "device": str(dev),
         "threads": torch.get_num_threads() if threads is None else threads,
         "normalisation": {"centre": centre.tolist(), "scale": scale},
@@ -237,6 +247,20 @@ def reconstruct_surface(
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
     return Reconstruction(vertices=verts, faces=faces, report=report)
+
+
+def _extract(evaluate, lo, hi, resolution, unit, field_cell, sharpen, workers, poll):
+    """Marching cubes at ``resolution``, then (when asked) the creases restored; normalised frame."""
+    verts, faces, report = extract_surface(evaluate, lo, hi, resolution=resolution, points=unit, poll=poll)
+    report["resolution"] = resolution
+    if sharpen:
+        poll()
+        # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
+        size = max(field_cell, 2.0 * report["cell"])
+        verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers)
+        report["sharpened"] = sharpened
+        report["watertight"] = is_watertight(faces)
+    return verts, faces, report
 
 
 def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, poll):

@@ -83,6 +83,29 @@ def test_cube_is_watertight_and_volume_within_two_percent():
     assert report["mesh"]["faces"] == len(result.faces)
 
 
+def test_cube_edges_are_sharpened_after_marching_cubes():
+    """The same field, extracted with and without sharpening: the edges' bevel faces are gone."""
+    rng = np.random.default_rng(2)
+    pts, nrm = cube_cloud(12000, 40.0, rng)
+
+    def edge_band_share(result):
+        t = result.vertices[result.faces]
+        cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        area = np.linalg.norm(cross, axis=1)
+        off_axis = np.degrees(np.arccos(np.clip(np.abs(cross).max(axis=1) / area, -1.0, 1.0)))
+        gap = np.abs(np.abs(t.mean(axis=1)) - 20.0)
+        band = ((gap < 1.5).sum(axis=1) == 2) & ((gap < 6.0).sum(axis=1) < 3)  # along edges, off corners
+        return area[band & (off_axis < 2.0)].sum() / area[band].sum()
+
+    plain = reconstruct_surface(pts, nrm, seed=0, sharpen=False, **FAST)
+    sharp = reconstruct_surface(pts, nrm, seed=0, **FAST)
+    assert "sharpened" not in plain.report["mesh"]
+    assert sharp.report["mesh"]["sharpened"]["split"] > 0
+    assert sharp.report["mesh"]["watertight"] and is_watertight(sharp.faces)
+    assert edge_band_share(plain) < 0.4 and edge_band_share(sharp) > 0.75
+    assert abs(mesh_volume(sharp.vertices, sharp.faces) - 40.0**3) < 0.02 * 40.0**3
+
+
 def test_max_faces_caps_the_mesh_and_keeps_it_closed():
     rng = np.random.default_rng(0)
     pts, nrm = sphere_cloud(3000, 25.0, rng)

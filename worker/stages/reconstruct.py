@@ -10,7 +10,7 @@ from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 
 # JobParams.reconstruct fields passed to the core under the same names.
 _CORE_OPTIONS = ("preset", "iterations", "batch_size", "grid_cells", "width", "depth", "resolution",
-                 "learning_rate", "eikonal_weight", "normal_weight", "normals_k", "max_faces", "seed")
+                 "learning_rate", "eikonal_weight", "normal_weight", "normals_k", "max_faces", "sharpen", "seed")
 
 
 def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
