@@ -34,7 +34,8 @@ class ReconstructParams(_Group):
     learning_rate: float | None = Field(None, ge=1e-7, le=1.0, description="Adam's initial step.")
     eikonal_weight: float = Field(0.1, ge=0, le=100, description="λ: weight of the eikonal term.")
     normal_weight: float = Field(1.0, ge=0, le=100, description="τ: weight of the normal term.")
-    normals_k: int = Field(16, ge=3, le=200, description="Neighbours for normal estimation when the cloud has none.")
+    normals_k: int = Field(16, ge=3, le=200, description="Neighbours for normal estimation when the cloud has none "
+                           "(grown, up to 4x, in proportion to the noise the first fit measures).")
     max_faces: int | None = Field(
         200_000, ge=1000, le=20_000_000, description="Cap on mesh_raw.ply's triangles: above it the surface is "
         "extracted on a coarser lattice (denoise and remesh time grow with the faces). None: no cap.")

@@ -133,6 +133,26 @@ def test_cube_without_normals_estimates_and_orients_them():
     assert abs(mesh_volume(result.vertices, result.faces) - 40.0**3) < 0.02 * 40.0**3
 
 
+def test_noisy_cloud_widens_the_normal_fit_and_a_clean_one_keeps_it():
+    """Gaussian noise of 0.6 point spacings: k grows and the normals get closer to the sphere's."""
+    rng = np.random.default_rng(5)
+    pts, true_n = sphere_cloud(20000, 25.0, rng)
+    spacing = 25.0 * np.sqrt(4.0 * np.pi / 20000)
+    clean, info = estimate_normals(pts, k=16)
+    assert info["k"] == 16 and info["noise_ratio"] < 0.05
+    noisy = pts + rng.normal(size=pts.shape) * 0.6 * spacing
+
+    def mean_error_deg(normals):
+        return np.degrees(np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", normals, true_n)), 0, 1))).mean()
+
+    fixed, fixed_info = estimate_normals(noisy, k=16, noise_adaptive=False)
+    wide, wide_info = estimate_normals(noisy, k=16)
+    assert fixed_info["k"] == 16 and 0.5 < wide_info["noise_ratio"] < 0.75
+    assert 32 <= wide_info["k"] <= 64
+    assert mean_error_deg(wide) < 0.5 * mean_error_deg(fixed)
+    assert np.mean(np.einsum("ij,ij->i", wide, true_n) > 0) > 0.999  # still outward
+
+
 def test_same_seed_same_mesh_and_other_seed_runs():
     rng = np.random.default_rng(4)
     pts, nrm = sphere_cloud(2000, 10.0, rng)
