@@ -216,9 +216,15 @@ def reconstruct_surface(
         field_cell = field.cell[-1] if isinstance(field, GridField) else 0.0
         resolution = opts["resolution"]
         for _ in range(4):
-            verts, faces, mesh_report = _extract(evaluate, lo, hi, resolution, unit, field_cell, sharpen,
-                                                 workers, poll)
-            if max_faces is None or len(faces) <= max_faces or resolution == 16:
+            verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=resolution, points=unit,
+                                                        poll=poll)
+            mesh_report["resolution"] = resolution
+            fits = max_faces is None or len(faces) <= max_faces or resolution == 16
+            if fits and sharpen:
+                # Sharpening adds a few per cent of faces, so the cap is checked again after it.
+                verts, faces, mesh_report = _sharpen(verts, faces, mesh_report, field_cell, workers, poll)
+                fits = max_faces is None or len(faces) <= max_faces or resolution == 16
+            if fits:
                 break
             # Faces grow with the square of the resolution; 0.97 leaves room for the estimate's error.
             coarser = max(16, min(resolution - 1, int(resolution * np.sqrt(max_faces / len(faces)) * 0.97)))
@@ -249,17 +255,14 @@ def reconstruct_surface(
     return Reconstruction(vertices=verts, faces=faces, report=report)
 
 
-def _extract(evaluate, lo, hi, resolution, unit, field_cell, sharpen, workers, poll):
-    """Marching cubes at ``resolution``, then (when asked) the creases restored; normalised frame."""
-    verts, faces, report = extract_surface(evaluate, lo, hi, resolution=resolution, points=unit, poll=poll)
-    report["resolution"] = resolution
-    if sharpen:
-        poll()
-        # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
-        size = max(field_cell, 2.0 * report["cell"])
-        verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers)
-        report["sharpened"] = sharpened
-        report["watertight"] = is_watertight(faces)
+def _sharpen(verts, faces, report, field_cell, workers, poll):
+    """The creases restored on a marching-cubes mesh (normalised frame); the report gains ``sharpened``."""
+    poll()
+    # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
+    size = max(field_cell, 2.0 * report["cell"])
+    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers)
+    report["sharpened"] = sharpened
+    report["watertight"] = is_watertight(faces)
     return verts, faces, report
 
 

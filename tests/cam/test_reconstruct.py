@@ -120,6 +120,16 @@ def test_max_faces_caps_the_mesh_and_keeps_it_closed():
         reconstruct_surface(pts, nrm, max_faces=10, **FAST)
 
 
+def test_max_faces_holds_after_sharpening_adds_faces():
+    rng = np.random.default_rng(2)
+    pts, nrm = cube_cloud(12000, 40.0, rng)
+    full = reconstruct_surface(pts, nrm, seed=0, sharpen=False, **FAST)
+    cap = len(full.faces) // 2
+    capped = reconstruct_surface(pts, nrm, seed=0, max_faces=cap, **FAST)
+    assert capped.report["mesh"]["sharpened"]["split"] > 0
+    assert len(capped.faces) <= cap and is_watertight(capped.faces)
+
+
 def test_cube_without_normals_estimates_and_orients_them():
     rng = np.random.default_rng(3)
     pts, true_n = cube_cloud(6000, 40.0, rng)
