@@ -247,7 +247,9 @@ def write_results(args, rows, mlp_row, pictures):
         f"torch {torch_v}, no GPU. Shared with other jobs while it ran: times are comparable within a row.",
         f"Clouds: {args.points} points sampled from each part (Fandisk and Block x10 = mm, the CSG part in mm), "
         "noise = Gaussian with sigma 0.25 % of the bounding-box diagonal per coordinate. Without normals, "
-        "both methods get the normals our stage estimates (PCA k=16, MST orientation).",
+        "both methods get the normals our stage estimates (PCA over k=16 neighbours, widened in proportion to the "
+        "noise it measures; MST orientation). IGR's mesh is marching cubes with the bevelled creases restored "
+        "(`reconstruct.sharpen`, the default).",
         "Chamfer and Hausdorff are relative to the true bounding-box diagonal; sharp-edge normal error is the "
         f"mean angle between reconstructed and true face normals on the reconstructed surface within two mean "
         f"edge lengths of the true sharp edges (dihedral > {SHARP_DEG:g} deg).",

@@ -4,7 +4,8 @@
 ``normals`` (estimate and orient), ``prior`` (closed-form start of the grid
 field), ``fields`` (grid pyramid and the paper's MLP), ``train`` (the IGR loss
 and Adam loop), ``extract`` (marching cubes and component selection),
-``presets`` (named option sets).
+``sharpen`` (the creases marching cubes bevels, restored), ``presets``
+(named option sets).
 """
 
 from cam.reconstruct.normals import NormalsError, estimate_normals

@@ -52,8 +52,8 @@ def sharpen_creases(
     faces
         int64 (f, 3) triangles, consistently wound.
     feature_size
-        Width of the bevel to undo, in the vertices' units: the larger of the
-        field's finest cell and the marching-cubes cell.
+        Width of the bevel to undo, in the vertices' units (the reconstruction
+        passes the larger of the field's finest cell and two marching-cubes cells).
     flat_deg
         A face is flat when every face within ``feature_size`` of it has a
         normal within this angle of its own; only flat faces fit planes.
@@ -91,8 +91,9 @@ def sharpen_creases(
     new_verts = verts.copy()
     new_verts[moved] = planes["foot"][moved]
     # A move that turns a face over (several bevel vertices landing on the same plane out of
-    # order) is undone; undoing can turn a neighbour, hence the rounds.
-    for _ in range(32):
+    # order) is undone; undoing can turn a neighbour, hence the rounds (each undoes at least one
+    # move, so they end).
+    while True:
         t = new_verts[faces]
         moved_normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
         # Also undone: a face squashed to under a hundredth of its area (two ends landing together).
@@ -242,7 +243,7 @@ def _split_crossing_edges(verts, faces, face_normal, pn, pd, moved, cos_crease):
     # Near either end the split would leave a sliver; the end vertex already sits at the crease.
     split = cand & (np.linalg.norm(point - mid, axis=1) <= 0.5 * length) & (along > 0.1) & (along < 0.9)
 
-    for _ in range(32):  # each round only removes splits, so this ends; 32 is ample in practice
+    while True:  # each round removes at least one split, so the rounds end
         new_faces, parent = _triangulate(faces, inverse, split, len(verts))
         all_verts = np.concatenate([verts, point[split]])
         t = all_verts[new_faces]
@@ -250,12 +251,10 @@ def _split_crossing_edges(verts, faces, face_normal, pn, pd, moved, cos_crease):
         # A child turned over, or one under a thousandth of its parent (the split point landed on
         # the line through an end that already sat on the crease), keeps its parent's edges whole.
         bad = (child * face_normal[parent]).sum(1) <= 1e-3 * (face_normal[parent] ** 2).sum(1)
+        bad &= split[inverse].any(axis=1)[parent]  # an unsplit face is as the moves left it
         if not bad.any():
             return all_verts, new_faces, int(split.sum())
-        bad_parents = np.unique(parent[bad])
-        split[inverse[bad_parents].ravel()] = False
-    new_faces, _ = _triangulate(faces, inverse, np.zeros_like(split), len(verts))
-    return verts, new_faces, 0
+        split[inverse[np.unique(parent[bad])].ravel()] = False
 
 
 def _triangulate(faces, inverse, split, n_verts):
