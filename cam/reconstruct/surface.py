@@ -102,8 +102,8 @@ def reconstruct_surface(
         Restore the sharp edges that marching cubes bevels over about one cell
         (:func:`~cam.reconstruct.sharpen.sharpen_creases`): bevel vertices move
         onto the two face planes and the edges between them are split at the
-        crease. The field itself is what IGR trained; this only places the
-        extracted mesh's vertices. False: plain marching cubes.
+        crease. The field is what IGR trained either way; this only changes
+        how its zero set is meshed. False: plain marching cubes.
     seed
         Seed (or a Generator that draws one); the same seed gives the same mesh on CPU.
     threads
