@@ -20,6 +20,8 @@ clusters of flat faces surround it, their planes meet at more than
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -42,6 +44,7 @@ def sharpen_creases(
     crease_deg: float = 30.0,
     reach: float = 8.0,
     workers: int = 1,
+    poll: Callable[[], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Move bevel vertices onto the crease's face planes and split edges at the crease.
 
@@ -65,6 +68,11 @@ def sharpen_creases(
     reach
         Flat faces up to this many feature sizes from a vertex may fit its planes:
         far enough that the field's rounding next to the crease does not tilt them.
+    workers
+        Threads for the k-NN queries.
+    poll
+        Called between the phases (a few seconds apart on a million faces); it
+        stops the work by raising.
 
     Returns
     -------
@@ -84,9 +92,12 @@ def sharpen_creases(
     normal = cross / np.maximum(2.0 * area, 1e-300)[:, None]
     centre = tri.mean(axis=1)
 
+    poll = poll or (lambda: None)
     flat = _flat_faces(centre, normal, area, feature_size, np.cos(np.radians(flat_deg)), workers)
+    poll()
     planes, on_a = _vertex_planes(verts, faces, centre, normal, area, flat, feature_size, reach * feature_size,
                                   np.cos(np.radians(cluster_deg)), np.cos(np.radians(crease_deg)), workers)
+    poll()
     moved = planes["ok"].copy()
     new_verts = verts.copy()
     new_verts[moved] = planes["foot"][moved]
@@ -119,6 +130,7 @@ def sharpen_creases(
     pn[moved] = side_n[moved]
     pd[moved] = side_d[moved]
 
+    poll()
     out_verts, out_faces, n_split = _split_crossing_edges(new_verts, faces, moved_normal, pn, pd, moved,
                                                           np.cos(np.radians(crease_deg)))
     return out_verts, out_faces, {"moved": int(moved.sum()), "split": int(n_split)}

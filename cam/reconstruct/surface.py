@@ -260,7 +260,7 @@ def _sharpen(verts, faces, report, field_cell, workers, poll):
     poll()
     # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
     size = max(field_cell, 2.0 * report["cell"])
-    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers)
+    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers, poll=poll)
     report["sharpened"] = sharpened
     report["watertight"] = is_watertight(faces)
     return verts, faces, report

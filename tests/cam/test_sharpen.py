@@ -103,3 +103,19 @@ def test_bad_feature_size_is_refused():
     v, f = _extract(_box_sdf)
     with pytest.raises(ValueError, match="feature_size"):
         sharpen_creases(v, f, feature_size=0.0)
+
+
+def test_poll_stops_the_work_between_phases():
+    v, f = _extract(_box_sdf)
+    calls = []
+
+    class Stop(Exception):
+        pass
+
+    def poll():
+        calls.append(None)
+        raise Stop
+
+    with pytest.raises(Stop):
+        sharpen_creases(v, f, feature_size=2 * H, poll=poll)
+    assert len(calls) == 1
