@@ -23,7 +23,7 @@ __all__ = ["PRESETS", "resolve_options"]
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {
         "field": "grid", "grid_cells": 192, "levels": 4, "width": None, "depth": None, "prior_k": 8,
-        "iterations": 200, "batch_size": 8192, "learning_rate": 0.02, "lr_final_ratio": 0.01,
+        "iterations": 50, "batch_size": 65536, "learning_rate": 0.02, "lr_final_ratio": 0.01,
         "schedule": "cosine", "sigma_k": 10, "resolution": 384,
     },
     "mlp": {

@@ -87,7 +87,7 @@ def test_fandisk_cloud_gives_one_watertight_part_close_to_the_truth():
     gt = trimesh.load(SHARED_DATA / "fandisk_gt.obj", process=False)
     gt.apply_scale(10.0)
     pts, fi = trimesh.sample.sample_surface(gt, 20000, seed=0)
-    result = reconstruct_surface(pts, gt.face_normals[fi], iterations=150, grid_cells=96, resolution=192,
+    result = reconstruct_surface(pts, gt.face_normals[fi], grid_cells=96, resolution=192,
                                  threads=1, seed=0)
     mesh = trimesh.Trimesh(result.vertices, result.faces, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.body_count == 1
