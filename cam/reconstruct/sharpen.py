@@ -136,14 +136,19 @@ def sharpen_creases(
     return out_verts, out_faces, {"moved": int(moved.sum()), "split": int(n_split)}
 
 
-def _flat_faces(centre, normal, area, radius, cos_flat, workers, k=32):
+def _flat_faces(centre, normal, area, radius, cos_flat, workers, k=32, chunk=100_000):
     """bool (f,): every face whose centroid is within ``radius`` has a normal within the flat angle."""
     tree = cKDTree(centre)
-    dist, idx = tree.query(centre, k=min(k, len(centre)), distance_upper_bound=radius, workers=workers)
-    valid = np.isfinite(dist)
-    idx = np.where(valid, idx, 0)
-    dots = np.einsum("fkc,fc->fk", normal[idx], normal)
-    return np.where(valid, dots >= cos_flat, True).all(axis=1) & (area > 0)
+    flat = np.empty(len(centre), dtype=bool)
+    # Chunks bound the (chunk, k, 3) neighbour normals (a million faces at once would take 800 MB).
+    for start in range(0, len(centre), chunk):
+        sl = slice(start, start + chunk)
+        dist, idx = tree.query(centre[sl], k=min(k, len(centre)), distance_upper_bound=radius, workers=workers)
+        valid = np.isfinite(dist)
+        idx = np.where(valid, idx, 0)
+        dots = np.einsum("fkc,fc->fk", normal[idx], normal[sl])
+        flat[sl] = np.where(valid, dots >= cos_flat, True).all(axis=1)
+    return flat & (area > 0)
 
 
 def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cluster, cos_crease, workers):
@@ -160,8 +165,9 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
     cand[faces[~flat].ravel()] = True
     cand_ids = np.flatnonzero(cand)
     flat_ids = np.flatnonzero(flat)
-    _, first = np.unique(np.floor(centre[flat_ids] / (VOXEL * size)).astype(np.int64), axis=0, return_index=True)
-    flat_ids = flat_ids[np.sort(first)]
+    _, one_per_voxel = np.unique(np.floor(centre[flat_ids] / (VOXEL * size)).astype(np.int64), axis=0,
+                                 return_index=True)
+    flat_ids = flat_ids[np.sort(one_per_voxel)]
     if len(cand_ids) == 0 or len(flat_ids) < 2:
         return out, on_a
     tree = cKDTree(centre[flat_ids])
