@@ -148,7 +148,7 @@ def test_noisy_cloud_widens_the_normal_fit_and_a_clean_one_keeps_it():
     rng = np.random.default_rng(5)
     pts, true_n = sphere_cloud(20000, 25.0, rng)
     spacing = 25.0 * np.sqrt(4.0 * np.pi / 20000)
-    clean, info = estimate_normals(pts, k=16)
+    _, info = estimate_normals(pts, k=16)
     assert info["k"] == 16 and info["noise_ratio"] < 0.05
     noisy = pts + rng.normal(size=pts.shape) * 0.6 * spacing
 
