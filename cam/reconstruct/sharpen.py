@@ -123,7 +123,7 @@ def sharpen_creases(
     for k in range(3):
         np.add.at(vnormal, faces[:, k], cross)
     vnormal /= np.maximum(np.linalg.norm(vnormal, axis=1), 1e-300)[:, None]
-    pn = vnormal.copy()
+    pn = vnormal
     pd = (vnormal * new_verts).sum(axis=1)
     side_n = np.where(on_a[:, None], planes["na"], planes["nb"])
     side_d = np.where(on_a, planes["da"], planes["db"])
@@ -201,7 +201,7 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
         cc = (c * ww[:, :, None]).sum(1) / np.maximum(ww.sum(1), 1e-300)[:, None]
         return nn, dd, cc
 
-    na, da, ca = plane(in1)
+    na, da, _ = plane(in1)
     nb, db, cb = plane(in2)
     cosab = (na * nb).sum(1)
     good &= cosab <= cos_crease
@@ -226,7 +226,7 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
     foot = np.where(choose_a[:, None], foot_a, foot_b)
     out["na"][cand_ids], out["da"][cand_ids] = na, da
     out["nb"][cand_ids], out["db"][cand_ids] = nb, db
-    out["foot"][cand_ids] = np.where(good[:, None], foot, p)
+    out["foot"][cand_ids] = foot  # read only where ok
     out["ok"][cand_ids] = good
     on_a[cand_ids] = choose_a
     return out, on_a
