@@ -395,16 +395,16 @@ def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
         idx = np.flatnonzero(owner == k)
         if not idx.size:
             continue
-        u, v, d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx])
-        ku, kv = fit.knots_u, fit.knots_v
-        on_border = (u <= ku[3]) | (u >= ku[-4]) | (v <= kv[3]) | (v >= kv[-4])
-        far = on_border & (d > tol)
+        d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx])[2]
+        # Every far sample, not only those whose foot is on the border: where the quad mesh cuts
+        # a corner of the part, a sample can take a strip's quad and a foot inside the strip
+        # while the neighbour's surface passes through it.
         for nb in layout.neighbours[k]:
-            if not far.any():
+            far = np.flatnonzero(d > tol)
+            if not far.size:
                 break
             f = fits[nb]
-            dn = distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]])[2]
-            d[far] = np.minimum(d[far], dn)
+            d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]])[2])
         err[idx] = d
     return err
 

@@ -149,3 +149,21 @@ def test_sample_budget_must_be_positive():
     V, ids, MV, MF = case(poly, (20, 10), (10, 5))
     with pytest.raises(ValueError, match="max_samples_per_quad"):
         fit_patches(V, [ids], MV, MF, max_samples_per_quad=0.0)
+
+
+def test_a_sample_a_neighbour_passes_through_is_not_counted_against_its_patch():
+    # Its own surface (z = 0) is 1 mm away with a foot inside, not on the border (a strip where the
+    # quad mesh cuts a corner of the part); the neighbour's surface (z = 1) holds it.
+    from types import SimpleNamespace
+
+    from cam.fit.boundary import Layout
+    from cam.fit.patches import _sample_errors
+
+    knots = np.array([0.0] * 4 + [1.0] * 4)
+    s, t = np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), indexing="ij")
+    fits = [SimpleNamespace(knots_u=knots, knots_v=knots, control_points=np.stack([s, t, np.full_like(s, z)], -1))
+            for z in (0.0, 1.0)]
+    layout = Layout(curves=[], sides={}, shared=[], neighbours=[(1,), (0,)])
+    P = np.array([[0.5, 0.5, 1.0], [0.25, 0.5, 0.0]])
+    err = _sample_errors(P, np.array([0, 0]), fits, layout, 0.032)
+    np.testing.assert_allclose(err, [0.0, 0.0], atol=1e-12)
