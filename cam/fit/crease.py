@@ -54,8 +54,15 @@ def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 
                    reach=float(0.5 * np.linalg.norm(b - a, axis=1).max()))
 
 
-def closest_on_creases(creases: Creases, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest crease points to `points` (n, 3): points float64 (n, 3), distances float64 (n,) (inf: no creases)."""
+def closest_on_creases(creases: Creases, points: np.ndarray, *, directions: np.ndarray | None = None,
+                       max_angle_deg: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+    """Closest crease points to `points` (n, 3): points float64 (n, 3), distances float64 (n,) (inf: none found).
+
+    directions float64 (n, 3): where given (non-zero rows), only crease segments within
+    `max_angle_deg` of that direction (either sense) count, so a point on an edge that runs
+    across a crease is not pulled onto it; nor does a point move more along the direction
+    than across it (an edge that runs on past where a crease ends stays off the crease's end).
+    """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if creases.tree is None or not len(P):
         return P.copy(), np.full(len(P), np.inf)
@@ -64,20 +71,30 @@ def closest_on_creases(creases: Creases, points: np.ndarray) -> tuple[np.ndarray
     idx = idx.reshape(len(P), -1)
     a, b = creases.a[idx], creases.b[idx]
     ab = b - a
-    t = np.clip(np.einsum("nkd,nkd->nk", P[:, None, :] - a, ab) / np.maximum(np.einsum("nkd,nkd->nk", ab, ab), 1e-300),
-                0, 1)
+    ab2 = np.maximum(np.einsum("nkd,nkd->nk", ab, ab), 1e-300)
+    t = np.clip(np.einsum("nkd,nkd->nk", P[:, None, :] - a, ab) / ab2, 0, 1)
     q = a + t[..., None] * ab
     d = np.linalg.norm(q - P[:, None, :], axis=2)
+    if directions is not None:
+        D = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        dn = np.linalg.norm(D, axis=1)
+        cos = np.abs(np.einsum("nkd,nd->nk", ab, D)) / (np.sqrt(ab2) * np.maximum(dn, 1e-300)[:, None])
+        unit = D / np.maximum(dn, 1e-300)[:, None]
+        along = np.abs(np.einsum("nkd,nd->nk", q - P[:, None, :], unit))
+        off = (cos < np.cos(np.radians(max_angle_deg))) | (along > 0.5 * d)
+        d = np.where(off & (dn > 0)[:, None], np.inf, d)
     best = np.argmin(d, axis=1)
     rows = np.arange(len(P))
     return q[rows, best], d[rows, best]
 
 
-def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, corner: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, corner: np.ndarray | None = None,
+                directions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Move points (n, 3) onto the creases where one lies within `radius` (n,) mm.
 
     corner bool (n,): these may go to a crease corner within their radius first.
+    directions float64 (n, 3): the direction of the sharp edge each point lies on (zero: any);
+    only a crease running within 30 degrees of it takes the point (see `closest_on_creases`).
     Returns the points float64 (n, 3) and bool (n,) which of them moved.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3).copy()
@@ -99,7 +116,8 @@ def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, cor
             P[sel[ok]] = creases.corners[i[ok]]
             moved[sel[ok]] = True
     rest = np.flatnonzero(~moved)
-    q, d = closest_on_creases(creases, P[rest])
+    q, d = closest_on_creases(creases, P[rest],
+                              directions=None if directions is None else np.asarray(directions)[rest])
     ok = d <= radius[rest]
     P[rest[ok]] = q[ok]
     moved[rest[ok]] = True
@@ -154,6 +172,8 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
     if not ids.size:
         return out
     corner = np.zeros(ids.size, dtype=bool)
+    # The way the sharp edges run through a vertex; a corner may take a crease of any direction.
+    direction = np.zeros((ids.size, 3))
     for n, vid in enumerate(ids.tolist()):
         others = sorted(set(border_sharp[vid]))
         if len(others) >= 3:
@@ -162,6 +182,9 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
             d1, d2 = V[others[0]] - V[vid], V[others[1]] - V[vid]
             cos = d1 @ d2 / max(np.linalg.norm(d1) * np.linalg.norm(d2), 1e-300)
             corner[n] = cos > -np.cos(np.radians(30.0))  # not a straight continuation
+            direction[n] = 0.0 if corner[n] else V[others[1]] - V[others[0]]
+        else:
+            direction[n] = V[others[0]] - V[vid]
     radius = snap_radius * np.array([np.mean(length[v]) for v in ids.tolist()])
-    out[ids] = snap_points(creases, out[ids], radius, corner=corner)[0]
+    out[ids] = snap_points(creases, out[ids], radius, corner=corner, directions=direction)[0]
     return out

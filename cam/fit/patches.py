@@ -353,7 +353,9 @@ def _crease_samples(pts: np.ndarray, start: int, creases, index, per_edge: int =
     q = (a[:, None, :] * (1 - s)[None, :, None] + b[:, None, :] * s[None, :, None]).reshape(-1, 3)
     h = (seg[:, None] + s[None, :]).ravel() + start
     edge = np.repeat(np.linalg.norm(b - a, axis=1), per_edge)
-    snapped, moved = snap_points(creases, q, edge)
+    # Only a crease along the edge: a sharp edge of the quad mesh can end on a crease running
+    # across it (where segment's feature line meets a sharper one), and all of it would go there.
+    snapped, moved = snap_points(creases, q, edge, directions=np.repeat(b - a, per_edge, axis=0))
     q = np.where(moved[:, None], snapped, closest_points(index, q)[0])
     return np.concatenate([q, pts[-1:]]), np.concatenate([h, [start + len(pts) - 1.0]])
 

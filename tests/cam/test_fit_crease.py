@@ -1,0 +1,53 @@
+"""Crease lines of the triangle mesh and moving points of sharp quad edges onto them."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from cam.fit.crease import closest_on_creases, mesh_creases, snap_points
+
+
+def _box_creases():
+    # A 10 x 10 x 10 mm box: its twelve edges are its creases (90 degrees).
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    return mesh_creases(box.vertices, box.faces, angle_deg=40.0)
+
+
+def test_a_point_snaps_to_the_crease_beside_it():
+    cr = _box_creases()
+    p = np.array([[0.0, 4.7, 5.0]])  # on the top face, 0.3 mm from its edge y = 5 (which runs along x)
+    q, d = closest_on_creases(cr, p)
+    np.testing.assert_allclose(q, [[0.0, 5.0, 5.0]], atol=1e-12)
+    assert np.isclose(d[0], 0.3, rtol=0, atol=1e-12)
+    # Along the same direction as that edge (x) it still snaps, either sense.
+    q, d = closest_on_creases(cr, p, directions=np.array([[-1.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(q, [[0.0, 5.0, 5.0]], atol=1e-12)
+
+
+def test_a_point_on_an_edge_running_across_a_crease_is_not_pulled_onto_it():
+    cr = _box_creases()
+    # On the face x = 5, 0.4 mm below its top edge (which runs along y), on a sharp edge running along z.
+    p = np.array([[5.0, 0.0, 4.6]])
+    _, d = closest_on_creases(cr, p)
+    assert np.isclose(d[0], 0.4)
+    _, d = closest_on_creases(cr, p, directions=np.array([[0.0, 0.0, 1.0]]))
+    assert np.isinf(d[0]) or d[0] > 4.0  # only creases along z count: the vertical edges, 5 mm away
+    pts, moved = snap_points(cr, p, np.array([1.0]), directions=np.array([[0.0, 0.0, 1.0]]))
+    assert not moved[0] and np.array_equal(pts, p)
+    # Without a direction (a corner of the sharp-edge network) it goes as before.
+    assert snap_points(cr, p, np.array([1.0]))[1][0]
+
+
+def test_a_point_past_the_end_of_a_crease_stays_off_it():
+    # Two triangles folded by 90 degrees along x in [0, 4]; the crease ends at x = 4. A sharp quad
+    # edge that runs on along x past it keeps its points where they are.
+    V = np.array([[0, 0, 0], [4, 0, 0], [2, 3, 0], [2, 0, 3]], dtype=np.float64)
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    cr = mesh_creases(V, F, angle_deg=40.0)
+    p = np.array([[4.5, 0.0, 0.0], [3.5, 0.05, 0.0]])
+    x = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    pts, moved = snap_points(cr, p, np.array([1.0, 1.0]), directions=x)
+    assert moved.tolist() == [False, True]
+    np.testing.assert_allclose(pts, [[4.5, 0.0, 0.0], [3.5, 0.0, 0.0]], atol=1e-12)
+    assert snap_points(cr, p[:1], np.array([1.0]))[1][0]  # without the direction it would go to the end
