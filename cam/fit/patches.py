@@ -126,14 +126,18 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                 normal_weight_mm=normal_weight_mm, anchor_weight=anchor_weight, iterations=iterations)
     layout = boundary_layout(grids)
     index = mesh_index(mesh_vertices, mesh_faces)
-    P_all, N_all = mesh_samples(mesh_vertices, mesh_faces, per_face=samples_per_face)
-    asg_all = assign_samples(P_all, V, grids, other_quads=other_quads)
-    use = _thin(asg_all.patch, grids, max_samples_per_quad)
-    P, N = P_all[use], N_all[use]
-    owner, su, sv = asg_all.patch[use], asg_all.u[use], asg_all.v[use]
     sharp = edge_keys(sharp_edges)
     creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg) if sharp else None
     positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases, snap_radius=snap_radius)
+    P_all, N_all = mesh_samples(mesh_vertices, mesh_faces, per_face=samples_per_face)
+    # Samples go to the quad nearest them once the grid vertices sit where the fit puts them:
+    # the remesher's sharp edges run up to a quad beside the crease, and a sample on the far
+    # face (the neighbour's, or the unfitted base's) would otherwise belong to this patch.
+    placed = np.where(np.isfinite(positions), positions, V)
+    asg_all = assign_samples(P_all, placed, grids, other_quads=other_quads)
+    use = _thin(asg_all.patch, grids, max_samples_per_quad)
+    P, N = P_all[use], N_all[use]
+    owner, su, sv = asg_all.patch[use], asg_all.u[use], asg_all.v[use]
     anchors = [grid_anchors(V, g, index, spacing=knot_spacing, positions=positions) for g in grids]
     sharp_side = {(k, name): _is_sharp(side_vertices(g, name), sharp) for k, g in enumerate(grids) for name in SIDES}
     # A side that turns a corner needs a C0 knot line there in the free fit already: a smooth

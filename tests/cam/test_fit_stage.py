@@ -121,3 +121,13 @@ def test_cancel_stops_the_fit_between_patches(tmp_path):
     with pytest.raises(StageCanceled):
         run_fit(ctx)
     assert not (ctx.out_dir / "surfaces.json").exists()
+
+
+def test_samples_across_a_sharp_border_belong_to_the_face_there(tmp_path):
+    # Only the first roof face is a patch; the quads of the second are in none (like a setup base).
+    # The remesher put the sharp row 0.8 mm onto the second face; the fit moves the border onto the
+    # crease, and the mesh between crease and row belongs to the second face, not to this patch.
+    ctx, MV, MF = _job(tmp_path, ridge(15.0, 0.8), blocks=[(0, 7)], sharp=True, shift=0.8)
+    doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
+    assert doc["over_tolerance"] == []
+    assert doc["surfaces"][0]["max_error_mm"] < 0.01
