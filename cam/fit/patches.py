@@ -356,10 +356,12 @@ def _crease_samples(pts: np.ndarray, start: int, creases, index, per_edge: int =
     a, b = pts[:-1], pts[1:]
     q = (a[:, None, :] * (1 - s)[None, :, None] + b[:, None, :] * s[None, :, None]).reshape(-1, 3)
     h = (seg[:, None] + s[None, :]).ravel() + start
-    edge = np.repeat(np.linalg.norm(b - a, axis=1), per_edge)
+    # The reach shrinks to nothing at the vertices: the curve passes through them, and a vertex
+    # left off the crease (no crease within its own reach) must not get data a crease away from it.
+    reach = np.outer(np.linalg.norm(b - a, axis=1), np.minimum(1.0, 2.0 * np.minimum(s, 1.0 - s))).ravel()
     # Only a crease along the edge: a sharp edge of the quad mesh can end on a crease running
     # across it (where segment's feature line meets a sharper one), and all of it would go there.
-    snapped, moved = snap_points(creases, q, edge, directions=np.repeat(b - a, per_edge, axis=0))
+    snapped, moved = snap_points(creases, q, reach, directions=np.repeat(b - a, per_edge, axis=0))
     q = np.where(moved[:, None], snapped, closest_points(index, q)[0])
     return np.concatenate([q, pts[-1:]]), np.concatenate([h, [start + len(pts) - 1.0]])
 

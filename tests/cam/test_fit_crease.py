@@ -51,3 +51,20 @@ def test_a_point_past_the_end_of_a_crease_stays_off_it():
     assert moved.tolist() == [False, True]
     np.testing.assert_allclose(pts, [[4.5, 0.0, 0.0], [3.5, 0.0, 0.0]], atol=1e-12)
     assert snap_points(cr, p[:1], np.array([1.0]))[1][0]  # without the direction it would go to the end
+
+
+def test_boundary_curve_data_leave_a_vertex_off_the_crease_where_it_is():
+    # The curve passes through its vertices; data a crease away from one of them would make it swing.
+    from cam.closest import mesh_index
+    from cam.fit.patches import _crease_samples
+
+    V = np.array([[0, 0, 0], [4, 0, 0], [2, 3, 0], [2, 0, 3]], dtype=np.float64)
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    cr = mesh_creases(V, F, angle_deg=40.0)
+    pts = np.array([[1.0, 0.0, 0.8], [3.0, 0.0, 0.0]])  # the first vertex 0.8 mm up the face y = 0
+    q, h = _crease_samples(pts, 5, cr, mesh_index(V, F))
+    assert h[0] == 5.0 and h[-1] == 6.0
+    np.testing.assert_allclose(q[0], pts[0], atol=1e-12)
+    np.testing.assert_allclose(q[-1], pts[1], atol=1e-12)
+    mid = np.flatnonzero(h == 5.5)[0]
+    np.testing.assert_allclose(q[mid], [2.0, 0.0, 0.0], atol=1e-12)  # halfway, the crease takes it
