@@ -155,15 +155,24 @@ def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
         r = d[(0, 0)] - P[active]
         su, sv = d[(1, 0)], d[(0, 1)]
         g = np.stack([np.einsum("ij,ij->i", r, su), np.einsum("ij,ij->i", r, sv)], 1)
-        huu = np.einsum("ij,ij->i", su, su) + np.einsum("ij,ij->i", r, d[(2, 0)])
-        huv = np.einsum("ij,ij->i", su, sv) + np.einsum("ij,ij->i", r, d[(1, 1)])
-        hvv = np.einsum("ij,ij->i", sv, sv) + np.einsum("ij,ij->i", r, d[(0, 2)])
+        # A parameter on its bound whose descent leads out of the box is held there, and the step is
+        # taken in the other alone: the full step, clamped, can leave such a row where it is while
+        # the foot lies along the border (a skewed parameterisation), short of it.
+        held_u = ((ua <= lo_u[active]) & (g[:, 0] > 0)) | ((ua >= hi_u[active]) & (g[:, 0] < 0))
+        held_v = ((va <= lo_v[active]) & (g[:, 1] > 0)) | ((va >= hi_v[active]) & (g[:, 1] < 0))
+        g[held_u, 0] = 0.0
+        g[held_v, 1] = 0.0
+        free = ~(held_u | held_v)
+        juu, juv, jvv = (np.einsum("ij,ij->i", a, b) for a, b in ((su, su), (su, sv), (sv, sv)))
+        huu = np.where(held_u, 1.0, juu + np.einsum("ij,ij->i", r, d[(2, 0)]))
+        huv = np.where(free, juv + np.einsum("ij,ij->i", r, d[(1, 1)]), 0.0)
+        hvv = np.where(held_v, 1.0, jvv + np.einsum("ij,ij->i", r, d[(0, 2)]))
         det = huu * hvv - huv**2
-        bad = (det <= 1e-12 * (huu * hvv + 1e-300)) | (huu <= 0)
+        bad = (det <= 1e-12 * (huu * hvv + 1e-300)) | (huu <= 0) | (hvv <= 0)
         # Where the full Hessian is not positive definite, fall back to Gauss–Newton (J^T J).
-        huu = np.where(bad, np.einsum("ij,ij->i", su, su), huu)
-        huv = np.where(bad, np.einsum("ij,ij->i", su, sv), huv)
-        hvv = np.where(bad, np.einsum("ij,ij->i", sv, sv), hvv)
+        huu = np.where(bad & ~held_u, juu, huu)
+        huv = np.where(bad & free, juv, huv)
+        hvv = np.where(bad & ~held_v, jvv, hvv)
         det = huu * hvv - huv**2
         det = np.where(np.abs(det) < 1e-300, 1e-300, det)
         step_u = -(hvv * g[:, 0] - huv * g[:, 1]) / det
@@ -242,22 +251,47 @@ def foot_frames(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.nda
 
 
 def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
-                        points: np.ndarray, *, degree: tuple[int, int] = (3, 3), density: int = 4
+                        points: np.ndarray, *, degree: tuple[int, int] = (3, 3), density: int = 4, starts: int = 4
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distance from `points` (n, 3) to a surface without a starting guess: u, v, distance (n,) each.
 
     Starts Newton from the nearest of `density` x `density` samples per knot span, so a
-    point far from where any guess would put it still finds its foot point.
+    point far from where any guess would put it still finds its foot point. Where the foot found
+    lies on the domain's border, or another of the `starts` nearest samples lies more than a
+    sample away from it in the parameter grid, Newton runs from that sample too and the nearest
+    foot is kept: the border can hold a local minimum that is not the foot, and the surface can
+    come back near the point elsewhere (where a closed surface meets itself at a seam, the
+    sample nearest a point can lie on the seam's far side, and Newton stops on that border or
+    just inside it).
     """
     from scipy.spatial import cKDTree
 
     ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     gu = span_params(ku, density)
     gv = span_params(kv, density)
     uu, vv = np.meshgrid(gu, gv, indexing="ij")
-    S = evaluate_surface(ku, kv, control_points, uu.ravel(), vv.ravel(), degree=degree, order=0)[(0, 0)]
-    nearest = cKDTree(S).query(np.asarray(points, dtype=np.float64))[1]
-    return project_points(ku, kv, control_points, points, uu.ravel()[nearest], vv.ravel()[nearest], degree=degree)
+    uu, vv = uu.ravel(), vv.ravel()
+    S = evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
+    m = int(min(max(starts, 1), len(S)))
+    nearest = cKDTree(S).query(P, k=m)[1].reshape(len(P), m)
+    u, v, d = project_points(ku, kv, control_points, P, uu[nearest[:, 0]], vv[nearest[:, 0]], degree=degree)
+    p, q = degree
+    for j in range(1, m):
+        # Grid cells of the foot and of the j-th start (row-major, as `nearest` indexes them).
+        fi = np.searchsorted(gu, u) - 0.5
+        fj = np.searchsorted(gv, v) - 0.5
+        si, sj = np.divmod(nearest[:, j], gv.size)
+        on_border = (u <= ku[p]) | (u >= ku[-p - 1]) | (v <= kv[q]) | (v >= kv[-q - 1])
+        rows = np.flatnonzero(on_border | (np.abs(si - fi) > 1.5) | (np.abs(sj - fj) > 1.5))
+        if not rows.size:
+            continue
+        s = nearest[rows, j]
+        fu, fv, fd = project_points(ku, kv, control_points, P[rows], uu[s], vv[s], degree=degree)
+        better = fd < d[rows]
+        rows = rows[better]
+        u[rows], v[rows], d[rows] = fu[better], fv[better], fd[better]
+    return u, v, d
 
 
 @dataclass(frozen=True, eq=False)

@@ -179,3 +179,60 @@ def test_foot_points_with_the_piece_bound_match_those_without():
                             lower_bound=lambda rows, iu, iv: boxes.distance_bound(pts[rows], iu, iv))
     np.testing.assert_array_equal(pruned[1], full[1])
     np.testing.assert_array_equal(pruned[0], full[0])
+
+
+def test_a_foot_on_the_border_of_a_skewed_sheet_is_found():
+    # S(u, v) = (u + v, v, 0) on [0, 1]^2, a bicubic net at the Greville abscissae. The point's
+    # unconstrained foot has u < 0, so the true foot lies on the border u = 0, at v = 0.15
+    # (the closest point of the line (v, v, 0) to (-0.2, 0.5)). The full Newton step leads out
+    # through u = 0 from anywhere: clamped, it stops at v = 0.5 unless u is held on its bound.
+    from cam.fit.param import distance_to_surface, project_points
+
+    k = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
+    g = np.array([0, 1 / 3, 2 / 3, 1])
+    U, W = np.meshgrid(g, g, indexing="ij")
+    cp = np.stack([U + W, W, np.zeros_like(U)], -1)
+    p = np.array([[-0.2, 0.5, 0.1]])
+    exact = np.sqrt(0.35**2 + 0.35**2 + 0.1**2)
+    for start in ((0.5, 0.9), (0.0, 0.9), (1.0, 0.0), (0.3, 0.5)):
+        fu, fv, d = project_points(k, k, cp, p, np.array([start[0]]), np.array([start[1]]))
+        np.testing.assert_allclose([fu[0], fv[0], d[0]], [0.0, 0.15, exact], atol=1e-9)
+    np.testing.assert_allclose(distance_to_surface(k, k, cp, p)[2], [exact], atol=1e-9)
+
+
+def test_distance_to_a_closed_surface_is_found_on_either_side_of_its_seam():
+    # A tube whose v = 0 and v = 1 borders coincide (the control net goes once round a circle of
+    # radius 3 and ends where it began), like a patch that wraps round a boss. Points just off
+    # it near the seam, on both sides: the grid sample nearest them can sit on the seam's far
+    # side, where Newton stops on the border. Oracle: from the nearest of 401 x 2001 surface
+    # points, scipy's bounded quasi-Newton (L-BFGS-B) on the squared distance.
+    from scipy.optimize import minimize
+    from scipy.spatial import cKDTree
+
+    from cam.fit.param import distance_to_surface
+
+    n = 16
+    kv = clamped_uniform_knots(n)
+    ku = clamped_uniform_knots(4)
+    theta = np.linspace(0.0, 2 * np.pi, n)
+    z = np.linspace(0.0, 2.0, 4)
+    ring = np.stack([3 * np.cos(theta), 3 * np.sin(theta)], -1)
+    cp = np.concatenate([np.broadcast_to(ring, (4, n, 2)), np.broadcast_to(z[:, None, None], (4, n, 1))], -1)
+    s = make_bspline_surface(cp, ku, kv)
+    rng = np.random.default_rng(11)
+    v = np.concatenate([rng.uniform(0.0, 0.01, 40), rng.uniform(0.99, 1.0, 40)])
+    u = rng.uniform(0.1, 0.9, 80)
+    on = s.evaluate(u, v)
+    normal = np.cross(s.evaluate(u, v, du=1), s.evaluate(u, v, dv=1))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    pts = on + rng.uniform(-0.1, 0.1, (80, 1)) * normal
+    uu, vv = np.meshgrid(np.linspace(0, 1, 401), np.linspace(0, 1, 2001), indexing="ij")
+    dense = s.evaluate(uu.ravel(), vv.ravel())
+    nearest = cKDTree(dense).query(pts)[1]
+    oracle = np.empty(len(pts))
+    for i, (p, j) in enumerate(zip(pts, nearest)):
+        res = minimize(lambda x, p=p: float(np.sum((s.evaluate(x[:1], x[1:]) - p) ** 2)), [uu.ravel()[j], vv.ravel()[j]],
+                       method="L-BFGS-B", bounds=[(0, 1), (0, 1)], options=dict(ftol=1e-15, gtol=1e-12))
+        oracle[i] = np.sqrt(res.fun)
+    d = distance_to_surface(s.knots_u, s.knots_v, s.control_points, pts)[2]
+    np.testing.assert_allclose(d, oracle, atol=1e-6)
