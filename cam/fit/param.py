@@ -251,8 +251,8 @@ def foot_frames(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.nda
 
 
 def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
-                        points: np.ndarray, *, degree: tuple[int, int] = (3, 3), density: int = 4, starts: int = 4
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        points: np.ndarray, *, degree: tuple[int, int] = (3, 3), density: int = 4, starts: int = 4,
+                        search_above: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distance from `points` (n, 3) to a surface without a starting guess: u, v, distance (n,) each.
 
     Starts Newton from the nearest of `density` x `density` samples per knot span, so a
@@ -263,6 +263,11 @@ def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points
     come back near the point elsewhere (where a closed surface meets itself at a seam, the
     sample nearest a point can lie on the seam's far side, and Newton stops on that border or
     just inside it).
+
+    search_above (mm): a point whose distance found is still above it is searched span by span:
+    Newton runs from nine starts inside every knot span whose control points' box is nearer than
+    the foot found (a span lies in that hull), so a distance that decides a verdict does not rest
+    on one start.
     """
     from scipy.spatial import cKDTree
 
@@ -291,6 +296,52 @@ def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points
         better = fd < d[rows]
         rows = rows[better]
         u[rows], v[rows], d[rows] = fu[better], fv[better], fd[better]
+    if search_above is not None:
+        rows = np.flatnonzero(d > search_above)
+        if rows.size:
+            u[rows], v[rows], d[rows] = _search_spans(ku, kv, control_points, P[rows], u[rows], v[rows], d[rows],
+                                                      degree)
+    return u, v, d
+
+
+def _search_spans(ku, kv, control_points, P, u, v, d, degree, chunk: int = 1_000_000):
+    """Improve feet (u, v, d, each (n,)) of points P (n, 3) by Newton inside every knot span whose
+    control-point box is nearer than d, from nine points of the span."""
+    p, q = degree
+    cp = np.asarray(control_points, dtype=np.float64)
+    nu, nv = cp.shape[:2]
+    nets = np.lib.stride_tricks.sliding_window_view(cp, (p + 1, q + 1), axis=(0, 1))
+    su = np.flatnonzero(ku[p:nu] < ku[p + 1:nu + 1])
+    sv = np.flatnonzero(kv[q:nv] < kv[q + 1:nv + 1])
+    i, j = (a.ravel() for a in np.meshgrid(su, sv, indexing="ij"))
+    box_lo, box_hi = nets.min(axis=(3, 4))[i, j], nets.max(axis=(3, 4))[i, j]  # (spans, 3)
+    # The span's own derivatives hold up to its end, not at a C0 knot there: approach it from below.
+    lo = np.stack([ku[i + p], kv[j + q]], -1)
+    hi = np.stack([np.where(i + p + 1 < nu, np.nextafter(ku[i + p + 1], -np.inf), ku[i + p + 1]),
+                   np.where(j + q + 1 < nv, np.nextafter(kv[j + q + 1], -np.inf), kv[j + q + 1])], -1)
+    rows, spans = [], []
+    step = max(1, chunk // max(len(i), 1))
+    for c in range(0, len(P), step):
+        x = P[c:c + step, None, :]
+        gap = np.maximum(np.maximum(box_lo - x, x - box_hi), 0.0)
+        r, k = np.nonzero(np.sqrt(np.einsum("nki,nki->nk", gap, gap)) < d[c:c + step, None])
+        rows.append(r + c)
+        spans.append(k)
+    rows, spans = np.concatenate(rows), np.concatenate(spans)
+    if not rows.size:
+        return u, v, d
+    # Nine starts per span (a folded span holds more than one local minimum).
+    f = np.array([1 / 6, 1 / 2, 5 / 6])
+    fu_, fv_ = (a.ravel() for a in np.meshgrid(f, f, indexing="ij"))
+    rows, spans = np.repeat(rows, fu_.size), np.repeat(spans, fu_.size)
+    w = np.stack([np.tile(fu_, rows.size // fu_.size), np.tile(fv_, rows.size // fu_.size)], -1)
+    start = lo[spans] + w * (hi[spans] - lo[spans])
+    fu, fv, fd = _newton(ku, kv, cp, P[rows], start[:, 0], start[:, 1], lo[spans], hi[spans], degree, 12)
+    u, v, d = u.copy(), v.copy(), d.copy()
+    order = np.argsort(fd, kind="stable")[::-1]  # nearest last, so it is the one written
+    rows, fu, fv, fd = rows[order], fu[order], fv[order], fd[order]
+    better = fd < d[rows]
+    u[rows[better]], v[rows[better]], d[rows[better]] = fu[better], fv[better], fd[better]
     return u, v, d
 
 

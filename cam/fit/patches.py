@@ -396,14 +396,15 @@ def _constrained_start(k: int, layout: Layout, free: SurfaceFit, curves):
 def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
     """Distance of every assigned sample to the fitted surfaces (own, or a neighbour where closer).
 
-    Measured afresh on all samples, not taken from the fit, which may have used a subset.
+    Measured afresh on all samples, not taken from the fit, which may have used a subset; a
+    distance over the tolerance is searched for span by span before it counts.
     """
     err = np.full(len(P), np.nan)
     for k, fit in enumerate(fits):
         idx = np.flatnonzero(owner == k)
         if not idx.size:
             continue
-        d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx])[2]
+        d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx], search_above=tol)[2]
         # Every far sample, not only those whose foot is on the border: where the quad mesh cuts
         # a corner of the part, a sample can take a strip's quad and a foot inside the strip
         # while the neighbour's surface passes through it.
@@ -412,7 +413,8 @@ def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
             if not far.size:
                 break
             f = fits[nb]
-            d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]])[2])
+            d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]],
+                                                            search_above=tol)[2])
         err[idx] = d
     return err
 

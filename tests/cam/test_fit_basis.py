@@ -236,3 +236,31 @@ def test_distance_to_a_closed_surface_is_found_on_either_side_of_its_seam():
         oracle[i] = np.sqrt(res.fun)
     d = distance_to_surface(s.knots_u, s.knots_v, s.control_points, pts)[2]
     np.testing.assert_allclose(d, oracle, atol=1e-6)
+
+
+def test_distance_searched_span_by_span_finds_the_nearest_point_of_a_folded_surface():
+    # One bicubic span folded over itself along u (its net runs 0, 2, -1, 1) and bent in v: a
+    # point has several local minima of the distance. Searched span by span (search_above=0),
+    # every distance is the oracle's: scipy's L-BFGS-B from the nearest of 801 x 801 surface points.
+    from scipy.optimize import minimize
+    from scipy.spatial import cKDTree
+
+    from cam.fit.param import distance_to_surface
+
+    k = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
+    x = np.array([0.0, 2.0, -1.0, 1.0])
+    y = np.array([0.0, 1.0, 2.0, 3.0])
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    cp = np.stack([X, Y, 0.5 * np.sin(X) + 0.3 * (Y - 1.5) ** 2], -1)
+    s = make_bspline_surface(cp, k, k)
+    rng = np.random.default_rng(21)
+    pts = rng.uniform([-0.2, -0.2, -0.5], [1.2, 3.2, 1.0], (150, 3))
+    uu, vv = np.meshgrid(np.linspace(0, 1, 801), np.linspace(0, 1, 801), indexing="ij")
+    nearest = cKDTree(s.evaluate(uu.ravel(), vv.ravel())).query(pts)[1]
+    oracle = np.empty(len(pts))
+    for i, (p, j) in enumerate(zip(pts, nearest)):
+        res = minimize(lambda z, p=p: float(np.sum((s.evaluate(z[:1], z[1:]) - p) ** 2)), [uu.ravel()[j], vv.ravel()[j]],
+                       method="L-BFGS-B", bounds=[(0, 1), (0, 1)], options=dict(ftol=1e-15, gtol=1e-12))
+        oracle[i] = np.sqrt(res.fun)
+    d = distance_to_surface(s.knots_u, s.knots_v, s.control_points, pts, search_above=0.0)[2]
+    np.testing.assert_allclose(d, oracle, atol=1e-6)
