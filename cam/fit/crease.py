@@ -138,7 +138,8 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
 
     Vertices on a sharp patch border (an edge of the grid's outline in `sharp`) move onto the
     mesh's creases if one is within `snap_radius` times their mean edge length; a vertex where
-    sharp edges meet at an angle (or three or more meet) may go to a crease corner instead.
+    sharp edges meet at an angle (or three or more meet) may go to a crease corner instead, one
+    nearer to it than to its sharp neighbours.
     Every other vertex goes to its closest mesh point.
     """
     from cam.closest import closest_points
@@ -186,5 +187,16 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
         else:
             direction[n] = V[others[0]] - V[vid]
     radius = snap_radius * np.array([np.mean(length[v]) for v in ids.tolist()])
-    out[ids] = snap_points(creases, out[ids], radius, corner=corner, directions=direction)[0]
+    start = out[ids].copy()
+    snapped = snap_points(creases, start, radius, corner=corner, directions=direction)[0]
+    # A corner takes no crease corner that lies nearer one of its sharp neighbours than itself:
+    # that is the neighbour's place (a crease that bends just before it ends on the part's
+    # border has a crease corner at its end, and the vertex before the end would take it).
+    row = {v: n for n, v in enumerate(ids.tolist())}
+    gone = [n for n in np.flatnonzero(corner).tolist()
+            if any(np.linalg.norm(snapped[n] - start[row[o]]) < np.linalg.norm(snapped[n] - start[n])
+                   for o in border_sharp[int(ids[n])])]
+    if gone:
+        snapped[gone] = snap_points(creases, start[gone], radius[gone])[0]
+    out[ids] = snapped
     return out

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from cam.fit.crease import closest_on_creases, mesh_creases, snap_points
+from cam.closest import mesh_index
+from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
 
 
 def _box_creases():
@@ -55,7 +56,6 @@ def test_a_point_past_the_end_of_a_crease_stays_off_it():
 
 def test_boundary_curve_data_leave_a_vertex_off_the_crease_where_it_is():
     # The curve passes through its vertices; data a crease away from one of them would make it swing.
-    from cam.closest import mesh_index
     from cam.fit.patches import _crease_samples
 
     V = np.array([[0, 0, 0], [4, 0, 0], [2, 3, 0], [2, 0, 3]], dtype=np.float64)
@@ -68,3 +68,21 @@ def test_boundary_curve_data_leave_a_vertex_off_the_crease_where_it_is():
     np.testing.assert_allclose(q[-1], pts[1], atol=1e-12)
     mid = np.flatnonzero(h == 5.5)[0]
     np.testing.assert_allclose(q[mid], [2.0, 0.0, 0.0], atol=1e-12)  # halfway, the crease takes it
+
+
+def test_a_vertex_where_a_crease_bends_keeps_off_the_corner_where_it_ends():
+    # A roof whose ridge (s = 15) waves in z, so the sharp row turns 31 degrees at its last inner
+    # vertex: that vertex counts as a corner, and the crease's end on the border (a crease corner,
+    # 2.14 mm away, within the snap radius) is its neighbour's place, not its own. Every vertex
+    # of the ridge row lies on the crease already and stays where it is.
+    from tests.cam.test_fit_shapes import case
+
+    def roof(s, t):
+        return np.stack([s, t, 0.8 * (15.0 - np.abs(s - 15.0)) + 3.0 * np.sin(t / 3.0)], axis=-1)
+
+    V, ids, MV, MF = case(roof, (30, 15), (14, 7), refine=6)
+    sharp = np.stack([ids[7, :-1], ids[7, 1:]], 1)
+    cr = mesh_creases(MV, MF, angle_deg=40.0)
+    assert len(cr.corners) == 2  # the ridge's two ends on the border
+    pos = vertex_positions(V, [ids[:8], ids[7:]], mesh_index(MV, MF), sharp=edge_keys(sharp), creases=cr)
+    np.testing.assert_allclose(pos[ids[7]], V[ids[7]], atol=1e-12)
