@@ -280,15 +280,21 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
         for a, b in zip(cuts[:-1], cuts[1:]):
             lo, hi = spec.start + a, spec.start + b
             seg = pts[a:b + 1]
-            q, h = _curve_data(verts[a:b + 1], seg, lo, q_free, h_free, sharp if creases is not None else set(),
-                               creases, index)
+            fixed = [i for i in range(b - a + 1) if i in (0, b - a) or int(verts[a + i]) in ends]
+            cons = [(float(lo + i), seg[i]) for i in fixed]
+            # Along a crease the curve's parameter runs with arc length between its junctions, which
+            # keep theirs (the patches' sides meet there): the crease data follow the remesher's
+            # vertices, one of which can sit 0.02 mm from the next between edges of 1 mm, and a
+            # cubic cannot stand still for a parameter unit. The patches' own borders elsewhere are
+            # parameterised smoothly already.
+            on = _sharp_edges(verts[a:b + 1], sharp) if creases is not None else np.zeros(b - a, dtype=bool)
+            tau = lo + _chord_params(seg, fixed, on)
+            q, h = _curve_data(on, seg, tau, q_free, h_free, creases, index)
             length = float(np.linalg.norm(np.diff(seg, axis=0), axis=1).sum())
-            cons = [(float(lo + i), seg[i]) for i in range(b - a + 1)
-                    if i in (0, b - a) or int(verts[a + i]) in ends]
 
-            def on_mesh(t: np.ndarray, seg=seg, lo=lo) -> np.ndarray:
+            def on_mesh(t: np.ndarray, seg=seg, tau=tau) -> np.ndarray:
                 # Where the border's vertices say the curve runs: their polyline, onto the mesh.
-                return closest_points(index, _polyline_at(seg, t - lo))[0]
+                return closest_points(index, _polyline_at(seg, np.interp(t, tau, np.arange(len(seg)))))[0]
 
             parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, spacing), constraints=cons, length_mm=length,
                                    tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
@@ -299,24 +305,38 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
     return fits, errs
 
 
-def _curve_data(verts: np.ndarray, pts: np.ndarray, start: int, q_free: np.ndarray, h_free: np.ndarray,
-                sharp: set, creases, index) -> tuple[np.ndarray, np.ndarray]:
-    """Data for the curve through vertices `verts` (positions `pts`, parameters start, start + 1, ...):
-    along each run of sharp edges the crease, along the rest the patches' own borders (q_free at
-    parameters h_free)."""
-    on = _sharp_edges(verts, sharp)
+def _curve_data(on: np.ndarray, pts: np.ndarray, params: np.ndarray, q_free: np.ndarray, h_free: np.ndarray,
+                creases, index) -> tuple[np.ndarray, np.ndarray]:
+    """Data for the curve through vertices at `pts` (m, 3) with curve parameters `params` (m,):
+    along each run of sharp edges (`on`, bool (m - 1,)) the crease, along the rest the patches' own
+    borders (q_free at parameters h_free)."""
     cuts = [0, *(np.flatnonzero(on[1:] != on[:-1]) + 1).tolist(), len(on)]
     qs, hs = [], []
     for a, b in zip(cuts[:-1], cuts[1:]):
-        lo, hi = start + a, start + b
         if on[a]:
-            q, h = _crease_samples(pts[a:b + 1], lo, creases, index)
+            q, h = _crease_samples(pts[a:b + 1], params[a:b + 1], creases, index)
         else:
-            inside = (h_free >= lo) & (h_free <= hi)
+            inside = (h_free >= params[a]) & (h_free <= params[b])
             q, h = q_free[inside], h_free[inside]
         qs.append(q)
         hs.append(h)
     return np.concatenate(qs), np.concatenate(hs)
+
+
+def _chord_params(pts: np.ndarray, fixed: list[int], along: np.ndarray) -> np.ndarray:
+    """Parameters (m,) for the vertices of a polyline (m, 3): their indices, except along runs of
+    edges marked in `along` (bool (m - 1,)), where between two vertices that keep their index
+    (those in `fixed`, and the ends of each run) the parameter grows with arc length (evenly where
+    they coincide)."""
+    step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    out = np.arange(len(pts), dtype=np.float64)
+    ends = {*fixed, *(np.flatnonzero(along[1:] != along[:-1]) + 1).tolist()}
+    stops = sorted(ends | {0, len(pts) - 1})
+    for a, b in zip(stops[:-1], stops[1:]):
+        total = step[a:b].sum()
+        if b - a > 1 and along[a] and total > 0:
+            out[a + 1:b] = a + (b - a) * np.cumsum(step[a:b - 1]) / total
+    return out
 
 
 def _kinks(pts: np.ndarray, angle_deg: float) -> np.ndarray:
@@ -347,23 +367,25 @@ def _polyline_at(pts: np.ndarray, t: np.ndarray) -> np.ndarray:
     return (1.0 - s) * pts[i] + s * pts[i + 1]
 
 
-def _crease_samples(pts: np.ndarray, start: int, creases, index, per_edge: int = 8
+def _crease_samples(pts: np.ndarray, params: np.ndarray, creases, index, per_unit: int = 8
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Points along a polyline of vertex positions moved onto the nearest crease (else onto the mesh),
-    with their curve parameters."""
-    s = np.linspace(0, 1, per_edge, endpoint=False)
-    seg = np.arange(len(pts) - 1)
-    a, b = pts[:-1], pts[1:]
-    q = (a[:, None, :] * (1 - s)[None, :, None] + b[:, None, :] * s[None, :, None]).reshape(-1, 3)
-    h = (seg[:, None] + s[None, :]).ravel() + start
+    """Points along a polyline of vertex positions (m, 3) moved onto the nearest crease (else onto the
+    mesh), `per_unit` per unit of the curve parameter (the vertices have `params`, (m,) ascending),
+    with their parameters."""
+    h = params[0] + np.arange(int(round((params[-1] - params[0]) * per_unit))) / per_unit
+    x = np.interp(h, params, np.arange(len(pts), dtype=np.float64))
+    seg = np.minimum(np.floor(x).astype(np.int64), len(pts) - 2)
+    s = x - seg
+    a, b = pts[seg], pts[seg + 1]
+    q = a * (1 - s)[:, None] + b * s[:, None]
     # The reach shrinks to nothing at the vertices: the curve passes through them, and a vertex
     # left off the crease (no crease within its own reach) must not get data a crease away from it.
-    reach = np.outer(np.linalg.norm(b - a, axis=1), np.minimum(1.0, 2.0 * np.minimum(s, 1.0 - s))).ravel()
+    reach = np.linalg.norm(b - a, axis=1) * np.minimum(1.0, 2.0 * np.minimum(s, 1.0 - s))
     # Only a crease along the edge: a sharp edge of the quad mesh can end on a crease running
     # across it (where segment's feature line meets a sharper one), and all of it would go there.
-    snapped, moved = snap_points(creases, q, reach, directions=np.repeat(b - a, per_edge, axis=0))
+    snapped, moved = snap_points(creases, q, reach, directions=b - a)
     q = np.where(moved[:, None], snapped, closest_points(index, q)[0])
-    return np.concatenate([q, pts[-1:]]), np.concatenate([h, [start + len(pts) - 1.0]])
+    return np.concatenate([q, pts[-1:]]), np.concatenate([h, params[-1:]])
 
 
 def _side_curve(pieces, curves: list[CurveFit]) -> tuple[np.ndarray, np.ndarray]:

@@ -62,7 +62,7 @@ def test_boundary_curve_data_leave_a_vertex_off_the_crease_where_it_is():
     F = np.array([[0, 1, 2], [1, 0, 3]])
     cr = mesh_creases(V, F, angle_deg=40.0)
     pts = np.array([[1.0, 0.0, 0.8], [3.0, 0.0, 0.0]])  # the first vertex 0.8 mm up the face y = 0
-    q, h = _crease_samples(pts, 5, cr, mesh_index(V, F))
+    q, h = _crease_samples(pts, np.array([5.0, 6.0]), cr, mesh_index(V, F))
     assert h[0] == 5.0 and h[-1] == 6.0
     np.testing.assert_allclose(q[0], pts[0], atol=1e-12)
     np.testing.assert_allclose(q[-1], pts[1], atol=1e-12)

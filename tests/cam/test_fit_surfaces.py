@@ -167,3 +167,20 @@ def test_a_sample_a_neighbour_passes_through_is_not_counted_against_its_patch():
     P = np.array([[0.5, 0.5, 1.0], [0.25, 0.5, 0.0]])
     err = _sample_errors(P, np.array([0, 0]), fits, layout, 0.032)
     np.testing.assert_allclose(err, [0.0, 0.0], atol=1e-12)
+
+
+def test_a_crease_curve_through_a_vertex_next_to_its_neighbour_stays_on_the_crease():
+    # A roof whose ridge (s = 15) waves in z, with one vertex of the sharp ridge row 0.02 mm from
+    # the next one between edges of 2.1 mm (a remesher does that). The boundary curve along the
+    # ridge must still run on the crease: per quad edge, its parameter would have to stand still
+    # for one unit, and a cubic overshoots (0.34 mm off the mesh). Along a crease it runs with
+    # arc length between junctions instead.
+    def roof(s, t):
+        return np.stack([s, t, 0.8 * (15.0 - np.abs(s - 15.0)) + 3.0 * np.sin(t / 3.0)], axis=-1)
+
+    V, ids, MV, MF = case(roof, (30, 15), (14, 7), refine=6)
+    V[ids[7, 3]] = roof(np.array(15.0), np.array(15.0 / 7 * 4 - 0.02))
+    sharp = np.stack([ids[7, :-1], ids[7, 1:]], 1)
+    result = fit_patches(V, [ids[:8], ids[7:]], MV, MF, sharp_edges=sharp)
+    assert all(p.boundary_error_mm <= result.tolerance_mm for p in result.patches)
+    assert result.max_gap_mm <= 1e-9
