@@ -148,6 +148,24 @@ class PieceBoxes:
         return out
 
 
+def span_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, *,
+               degree: tuple[int, int] = (3, 3)) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Boxes around the control points acting on each knot span (a span lies in their convex hull).
+
+    Returns su, sv int (the spans of positive length: span (i, j) runs over knots_u[i + p] ..
+    knots_u[i + p + 1] and likewise in v) and lo, hi float64 (nu - p, nv - q, 3) mm, indexed by
+    (i, j) for every window of control points, including those of empty spans.
+    """
+    p, q = degree
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    cp = np.asarray(control_points, dtype=np.float64)
+    nu, nv = cp.shape[:2]
+    nets = np.lib.stride_tricks.sliding_window_view(cp, (p + 1, q + 1), axis=(0, 1))  # (nu-p, nv-q, 3, p+1, q+1)
+    su = np.flatnonzero(ku[p:nu] < ku[p + 1:nu + 1])
+    sv = np.flatnonzero(kv[q:nv] < kv[q + 1:nv + 1])
+    return su, sv, nets.min(axis=(3, 4)), nets.max(axis=(3, 4))
+
+
 def make_piece_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
                      pieces_u: np.ndarray, pieces_v: np.ndarray, *, degree: tuple[int, int] = (3, 3)) -> PieceBoxes:
     """The boxes that bound each piece between C0 lines from below, for `foot_in_pieces`.
@@ -160,12 +178,7 @@ def make_piece_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: n
     """
     p, q = degree
     ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
-    cp = np.asarray(control_points, dtype=np.float64)
-    nu, nv = cp.shape[:2]
-    nets = np.lib.stride_tricks.sliding_window_view(cp, (p + 1, q + 1), axis=(0, 1))  # (nu-p, nv-q, 3, p+1, q+1)
-    lo_all, hi_all = nets.min(axis=(3, 4)), nets.max(axis=(3, 4))
-    su = np.flatnonzero(ku[p:nu] < ku[p + 1:nu + 1])  # spans of positive length, as window indices
-    sv = np.flatnonzero(kv[q:nv] < kv[q + 1:nv + 1])
+    su, sv, lo_all, hi_all = span_boxes(ku, kv, control_points, degree=degree)
     bu, bv = np.asarray(pieces_u, dtype=np.float64), np.asarray(pieces_v, dtype=np.float64)
     # The piece a span belongs to: the one its midpoint falls in (spans never straddle a C0 line).
     piece_u = np.clip(np.searchsorted(bu, 0.5 * (ku[su + p] + ku[su + p + 1]), side="right") - 1, 0, bu.size - 2)

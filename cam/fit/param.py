@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import c0_pieces, foot_in_pieces, make_piece_boxes
+from cam.bspline import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
 from cam.fit.basis import evaluate_surface, span_params
 from cam.closest import closest_points, mesh_index
 
@@ -305,16 +305,14 @@ def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points
 
 
 def _search_spans(ku, kv, control_points, P, u, v, d, degree, chunk: int = 1_000_000):
-    """Improve feet (u, v, d, each (n,)) of points P (n, 3) by Newton inside every knot span whose
-    control-point box is nearer than d, from nine points of the span."""
+    """Improve feet (u, v, d, each (n,), updated in place and returned) of points P (n, 3) by Newton
+    inside every knot span whose control-point box is nearer than d, from nine points of the span."""
     p, q = degree
     cp = np.asarray(control_points, dtype=np.float64)
     nu, nv = cp.shape[:2]
-    nets = np.lib.stride_tricks.sliding_window_view(cp, (p + 1, q + 1), axis=(0, 1))
-    su = np.flatnonzero(ku[p:nu] < ku[p + 1:nu + 1])
-    sv = np.flatnonzero(kv[q:nv] < kv[q + 1:nv + 1])
+    su, sv, lo_all, hi_all = span_boxes(ku, kv, cp, degree=degree)
     i, j = (a.ravel() for a in np.meshgrid(su, sv, indexing="ij"))
-    box_lo, box_hi = nets.min(axis=(3, 4))[i, j], nets.max(axis=(3, 4))[i, j]  # (spans, 3)
+    box_lo, box_hi = lo_all[i, j], hi_all[i, j]  # (spans, 3)
     # The span's own derivatives hold up to its end, not at a C0 knot there: approach it from below.
     lo = np.stack([ku[i + p], kv[j + q]], -1)
     hi = np.stack([np.where(i + p + 1 < nu, np.nextafter(ku[i + p + 1], -np.inf), ku[i + p + 1]),
@@ -337,7 +335,6 @@ def _search_spans(ku, kv, control_points, P, u, v, d, degree, chunk: int = 1_000
     w = np.stack([np.tile(fu_, rows.size // fu_.size), np.tile(fv_, rows.size // fu_.size)], -1)
     start = lo[spans] + w * (hi[spans] - lo[spans])
     fu, fv, fd = _newton(ku, kv, cp, P[rows], start[:, 0], start[:, 1], lo[spans], hi[spans], degree, 12)
-    u, v, d = u.copy(), v.copy(), d.copy()
     order = np.argsort(fd, kind="stable")[::-1]  # nearest last, so it is the one written
     rows, fu, fv, fd = rows[order], fu[order], fv[order], fd[order]
     better = fd < d[rows]
