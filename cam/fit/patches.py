@@ -88,7 +88,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                 smoothing_mm2: float = 1e-4,
                 smoothing_floor: float = 1e-6, param_weight: float = 0.01, normal_weight_mm: float = 0.02,
                 anchor_weight: float = 1.0, iterations: int = 8, max_refinements: int = 3,
-                min_span: float = 0.125, kink_angle_deg: float = 40.0,
+                min_span: float = 0.125, kink_angle_deg: float = 40.0, mesh_weight: float = 1.0,
                 on_progress: Callable[[float, str], None] | None = None) -> FitResult:
     """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
 
@@ -104,6 +104,8 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     reported errors are measured on every sample either way. min_span: refinement halves knot spans,
     never below min_span quads. kink_angle_deg: where a patch side turns by more than this at a
     vertex (it runs round a corner of the part), its surface gets a C0 knot line there.
+    mesh_weight: weight of the surface's own points drawn onto the mesh, against the samples' 1
+    (`cam.fit.solve.fit_surface`; 0: samples only).
     on_progress (fraction, message) is called between patches (it may raise to stop the fit).
     """
     if not tolerance_mm > 0:
@@ -122,10 +124,11 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         if g.min() < 0 or g.max() >= len(V):
             raise ValueError(f"grid {k} refers to vertex ids outside 0..{len(V) - 1}")
     report = on_progress or (lambda f, m: None)
-    opts = dict(smoothing_mm2=smoothing_mm2, smoothing_floor=smoothing_floor, param_weight=param_weight,
-                normal_weight_mm=normal_weight_mm, anchor_weight=anchor_weight, iterations=iterations)
     layout = boundary_layout(grids)
     index = mesh_index(mesh_vertices, mesh_faces)
+    opts = dict(smoothing_mm2=smoothing_mm2, smoothing_floor=smoothing_floor, param_weight=param_weight,
+                normal_weight_mm=normal_weight_mm, anchor_weight=anchor_weight, iterations=iterations,
+                mesh=index if mesh_weight > 0 else None, mesh_weight=mesh_weight)
     sharp = edge_keys(sharp_edges)
     creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg) if sharp else None
     positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases, snap_radius=snap_radius)

@@ -52,14 +52,17 @@ def border_mask(shape: tuple[int, int]) -> np.ndarray:
 def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
                 knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
                 tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, min_gain: float = 0.1,
-                **options
+                border_band: float = 0.5, **options
                 ) -> tuple[SurfaceFit, int]:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
     fix_border keeps the outer ring of control points (knot insertion moves no boundary curve,
     so the border stays the shared curves through every round); samples beyond a fixed border
-    are ignored (they belong to the neighbour). A round that lowers the largest error by less
-    than the fraction `min_gain` ends the refinement. Returns the best fit and the rounds used.
+    are ignored (they belong to the neighbour). Spans are halved where samples are beyond the
+    tolerance, and where the surface is (with a `mesh` in the options), except within `border_band`
+    parameter units of a fixed border. A round that lowers the error beyond the tolerance
+    (`SurfaceFit.excess`) by less than the fraction `min_gain` ends the refinement. Returns the
+    best fit and the rounds used.
     """
     mode = "drop" if fix_border else "pull"
     cp = None if control_points is None else np.asarray(control_points, dtype=np.float64)
@@ -69,19 +72,34 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     rounds = 0
     while rounds < max_refinements and fit.max_error > tolerance_mm:
         bad = (fit.distance > tolerance_mm) & ~fit.clamped  # spans with data inside, not border reach
-        tu, tv = refine_targets(fit.knots_u, fit.knots_v, fit.u, fit.v, bad, min_span=min_span)
+        off = fit.surface_distance > tolerance_mm  # spans where the surface leaves the mesh
+        if fix_border:
+            # Along a fixed border the surface leaves the mesh as far as its boundary curve does,
+            # whatever the knots inside: halving those spans (whole knot lines, across the patch)
+            # would only narrow the band, round after round, at the cost of every row and column.
+            off &= _inside(fit, border_band)
+        tu, tv = refine_targets(fit.knots_u, fit.knots_v, np.concatenate([fit.u, fit.surface_u]),
+                                np.concatenate([fit.v, fit.surface_v]), np.concatenate([bad, off]),
+                                min_span=min_span)
         if tu.size == fit.knots_u.size and tv.size == fit.knots_v.size:
             break
         ku, kv, cp = refine_surface(fit.knots_u, fit.knots_v, fit.control_points, target_u=tu, target_v=tv)
         rounds += 1
-        fit_before = fit.max_error
         refit = fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
                             fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
                             clamped_samples=mode, warm=True, **options)
-        improved = refit.max_error < fit.max_error and refit.folded <= fit.folded
-        fit = refit if improved else fit
+        improved = refit.folded <= fit.folded and refit.improves_on(fit, tolerance_mm)
         # Each round can multiply the control points by four; a round that gains little means
         # the remaining error is not a lack of freedom (a border held by its curve, noise).
-        if not improved or refit.max_error > (1.0 - min_gain) * fit_before:
+        enough = improved and refit.improves_on(fit, tolerance_mm, by=min_gain)
+        fit = refit if improved else fit
+        if not enough:
             break
     return fit, rounds
+
+
+def _inside(fit: SurfaceFit, band: float) -> np.ndarray:
+    """bool (m,): which of the fit's surface points lie farther than `band` from every side of its domain."""
+    (u0, u1), (v0, v1) = (fit.knots_u[0], fit.knots_u[-1]), (fit.knots_v[0], fit.knots_v[-1])
+    u, v = fit.surface_u, fit.surface_v
+    return (u - u0 > band) & (u1 - u > band) & (v - v0 > band) & (v1 - v > band)

@@ -17,13 +17,14 @@ parameters (i, j) they have by construction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
 from cam.bspline import c0_knots, find_folds, make_bspline_surface
+from cam.closest import MeshIndex, closest_points
 from cam.fit.basis import evaluate_surface, span_params, surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
 from cam.fit.param import Anchors, foot_frames, project_points
 
@@ -38,6 +39,8 @@ class SurfaceFit:
     parameters; distance float64 (n,) mm from each sample to its foot point; clamped bool (n,):
     foot on the border with the sample beyond it; counted bool (n,): the samples the fit answers
     for (all, or those inside a fixed border); iterations: the step this fit came from.
+    surface_u, surface_v, surface_distance float64 (m,): points of the surface (a grid of
+    parameters) and their distance (mm) to the mesh, when the fit was given the mesh (else empty).
     """
 
     knots_u: np.ndarray
@@ -50,12 +53,36 @@ class SurfaceFit:
     counted: np.ndarray
     iterations: int
     folded: float = 0.0
+    surface_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    surface_v: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    surface_distance: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def max_error(self) -> float:
-        """Largest distance over the counted samples, mm."""
+        """Largest distance over the counted samples and the surface's own points, mm."""
         inside = self.distance[self.counted]
-        return float(inside.max()) if inside.size else 0.0
+        return max(float(inside.max(initial=0.0)), float(self.surface_distance.max(initial=0.0)))
+
+    def excess(self, tolerance_mm: float) -> float:
+        """Mean squared distance beyond the tolerance (mm²) of the counted samples, plus that of the
+        surface points.
+
+        It tells two fits apart where the largest distance does not: one held by a fixed border
+        (its boundary curve's error) is the same for both while the rest differ.
+        """
+        out = 0.0
+        for d in (self.distance[self.counted], self.surface_distance):
+            if d.size:
+                out += float(np.mean(np.maximum(d - tolerance_mm, 0.0) ** 2))
+        return out
+
+    def improves_on(self, other: SurfaceFit, tolerance_mm: float, *, by: float = 1e-9) -> bool:
+        """Whether this fit is closer than `other` by at least the fraction `by`: less excess beyond the
+        tolerance, or, where neither has any, a smaller largest distance."""
+        mine, theirs = self.excess(tolerance_mm), other.excess(tolerance_mm)
+        if mine > 0.0 or theirs > 0.0:
+            return mine < theirs * (1.0 - by)
+        return self.max_error < other.max_error * (1.0 - by)
 
 
 def sdm_weights(signed_distance: np.ndarray, curvature: np.ndarray, *, cap: float = 100.0) -> np.ndarray:
@@ -75,6 +102,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 param_weight: float = 0.01,
                 pull_weight: float = 0.3, pull_sides: tuple[bool, bool, bool, bool] = (True, True, True, True),
                 clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
+                mesh: MeshIndex | None = None, mesh_weight: float = 1.0, mesh_spacing: float = 0.25,
                 degree: tuple[int, int] = (3, 3)) -> SurfaceFit:
     """Fit a B-spline surface with the given knots to samples, keeping `fixed` control points.
 
@@ -96,9 +124,15 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     towards samples beyond it, with weight `pull_weight`, across the sides flagged in `pull_sides` (u = u0,
     u = u1, v = v0, v = v1; a patch fitted on its own, not across a crease, where samples beyond
     belong to the other face); "drop" ignores them (a border that is a shared curve).
+    mesh: the triangle mesh the samples come from. With it, every step also measures the surface
+    itself on a grid of parameters `mesh_spacing` apart (the same points whatever the knots, so fits
+    with different knots compare on them) against the mesh, and draws those points
+    onto the mesh (their closest points, along the mesh normal there, `mesh_weight` in all against
+    the samples' 1): samples alone leave a span with few of them free to bulge between them.
     Stops when the largest distance is within tolerance and no longer improving, when it stops
     improving, or after `iterations` steps; returns the best step seen: the least folded, and of
-    those the closest.
+    those the closest (`SurfaceFit.improves_on`). A step that folds the net more is taken again
+    from the best one, damped (Levenberg-Marquardt).
     """
     P = np.asarray(points, dtype=np.float64)
     Nm = np.asarray(normals, dtype=np.float64)
@@ -135,6 +169,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     # A pulled border settles like a contact problem (samples come in and out of reach), so it gets
     # more patience before the iteration is called stuck.
     patience = 4 if clamped_samples == "pull" else 2
+    damping = 0.0
     for it in range(iterations + 1):
         u, v, dist = project_points(ku, kv, cp, P, u, v, degree=degree)
         frame = foot_frames(ku, kv, cp, u, v, degree=degree)
@@ -143,19 +178,32 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         off = r - along[:, None] * frame.normal
         clamped = np.linalg.norm(off, axis=1) > 1e-6 + 1e-3 * np.abs(along)
         counted = ~clamped if clamped_samples == "drop" else np.ones(len(P), dtype=bool)
+        grid = _surface_grid(ku, kv, cp, mesh, mesh_spacing, degree) if mesh is not None else None
+        extra = {} if grid is None else dict(surface_u=grid[0], surface_v=grid[1], surface_distance=grid[2])
         fit = SurfaceFit(ku, kv, cp, u, v, dist, clamped, counted, it,
-                         find_folds(make_bspline_surface(cp, ku, kv, degree=degree))[0])
+                         find_folds(make_bspline_surface(cp, ku, kv, degree=degree))[0], **extra)
         # Squared-distance steps leave tangential motion almost free, and as the smoothing decays
         # a net can fold while it hugs the data ever closer: a step that folds more is no progress.
         regular = best is None or fit.folded <= best.folded
-        if best is None or fit.folded < best.folded or regular and fit.max_error < best.max_error * (1 - 1e-9):
-            stalls = 0 if best is None or fit.folded < best.folded or fit.max_error < 0.95 * best.max_error \
+        folds_more = not regular
+        if best is None or fit.folded < best.folded or regular and fit.improves_on(best, tolerance_mm):
+            stalls = 0 if best is None or fit.folded < best.folded or fit.improves_on(best, tolerance_mm, by=0.05) \
                 else stalls + 1
-            best = fit
+            best, state = fit, (frame, along, off, grid)
+            damping = 0.0 if damping <= 1e-3 else damping / 10.0
+        elif folds_more:
+            # Take the step again from the best fit, shorter (Levenberg-Marquardt). A refit after knot
+            # insertion, whose new control points little data holds, folds at its first full step;
+            # without this it never moves. A fold that no damping prevents is a stall.
+            damping = 1.0 if damping == 0.0 else 10.0 * damping
+            stalls += damping > 100.0
         else:
             stalls += 1
         if it == iterations or (best.max_error <= tolerance_mm and stalls >= 1) or stalls >= patience:
             break
+        if folds_more:
+            cp, u, v, clamped = best.control_points, best.u, best.v, best.clamped
+            frame, along, off, grid = state
         lam = smoothing_mm2 * (smoothing_floor if warm else max(smoothing_decay ** (it + 1), smoothing_floor))
         keep = (~clamped).astype(np.float64) / n
         terms = [(frame.normal, keep, _dot(frame.normal, P)),
@@ -170,6 +218,10 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             pull = clamped & (on_side & np.asarray(pull_sides, dtype=bool)).any(axis=1)
             terms.append((out, pull_weight * pull / n, _dot(out, P)))
         rows = [(surface_rows(ku, kv, u, v, degree=degree), terms)]
+        if grid is not None:
+            gu, gv, _, near, mesh_normal, ok = grid
+            w = mesh_weight * ok / max(int(ok.sum()), 1)
+            rows.append((surface_rows(ku, kv, gu, gv, degree=degree), [(mesh_normal, w, _dot(mesh_normal, near))]))
         if normal_weight_mm > 0:
             # S_u · n = 0 and S_v · n = 0, scaled by |S_u|, |S_v|: the sine of the normal error.
             for du, dv, tangent, length in ((1, 0, frame.su, lengths_mm[0]), (0, 1, frame.sv, lengths_mm[1])):
@@ -180,8 +232,39 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         if anchors is not None:
             af = foot_frames(ku, kv, cp, anchors.u, anchors.v, degree=degree)
             rows.append(_anchor_rows(anchors, ku, kv, degree, anchor_weight, param_weight, af.t1, af.t2, []))
-        cp = system.solve(rows, lam, cp)
+        cp = system.solve(rows, lam, cp, damping)
     return best
+
+
+def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree):
+    """Points of the surface on a grid of parameters `spacing` apart (and the far ends), and the mesh near them.
+
+    Returns u, v (m,), distance (m,) mm to the mesh, the closest mesh points (m, 3), the normals of
+    their triangles (m, 3), and ok bool (m,): the mesh lies along its triangle's normal from the
+    point (within 27°) and the triangle faces the way the surface does (within 60°).
+    """
+    uu, vv = np.meshgrid(_spaced(ku, spacing), _spaced(kv, spacing), indexing="ij")
+    u, v = uu.ravel(), vv.ravel()
+    frame = foot_frames(ku, kv, cp, u, v, degree=degree)
+    near, dist, tri, _ = closest_points(mesh, frame.point)
+    a, b, c = (mesh.vertices[mesh.faces[tri, i]] for i in range(3))
+    fn = np.cross(b - a, c - a)
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    # Drawn onto the mesh only where the mesh lies along the normal from the point: past the edge of
+    # an open mesh, or across a crease, the closest point is on an edge off to the side, and the
+    # plane of its triangle would bend the surface towards where the mesh is not.
+    r = frame.point - near
+    along = _dot(r, fn)
+    square = np.linalg.norm(r - along[:, None] * fn, axis=1) <= 1e-6 + 0.5 * np.abs(along)
+    ok = square & (np.abs(_dot(fn, frame.normal)) > 0.5)
+    return u, v, dist, near, fn, ok
+
+
+def _spaced(knots: np.ndarray, spacing: float) -> np.ndarray:
+    """The multiples of `spacing` inside the knots' domain, and its two ends."""
+    lo, hi = float(knots[0]), float(knots[-1])
+    inner = np.arange(np.floor(lo / spacing) + 1, np.ceil(hi / spacing)) * spacing
+    return np.concatenate([[lo], inner[(inner > lo) & (inner < hi)], [hi]])
 
 
 def _speed2(tangent: np.ndarray, length_mm: float) -> np.ndarray:
@@ -273,7 +356,7 @@ class _System:
         self.free3 = np.concatenate([free + k * self.ncp for k in range(3)])
         self.fixed3 = np.concatenate([np.flatnonzero(fixed.ravel()) + k * self.ncp for k in range(3)])
 
-    def solve(self, rows: list, lam: float, cp_current: np.ndarray) -> np.ndarray:
+    def solve(self, rows: list, lam: float, cp_current: np.ndarray, damping: float = 0.0) -> np.ndarray:
         """Minimise Σ w (e · S(u) - target)² over the row sets plus lam · thin-plate, free points only.
 
         rows: [((cols, vals), [(e (n, 3), w (n,), target (n,)), ...]), ...] — each term is a
@@ -307,6 +390,12 @@ class _System:
         if weak.any():
             M_ff = M_ff + sp.diags(np.where(weak, scale * 1e-10, 0.0))
             r = r + np.where(weak, scale * 1e-10, 0.0) * c_all[self.free3]
+        if damping > 0:
+            # Levenberg-Marquardt: moving a control point from cp_current costs damping times the
+            # problem's curvature along it, floored so that points little data reaches are held too.
+            d = damping * np.maximum(diag, 1e-3 * float(diag.mean()))
+            M_ff = M_ff + sp.diags(d)
+            r = r + d * c_all[self.free3]
         c_all = c_all.copy()
         c_all[self.free3] = _solve_spd(M_ff.tocsc(), r)
         return c_all.reshape(3, -1).T.reshape(cp_current.shape)

@@ -264,3 +264,24 @@ def test_distance_searched_span_by_span_finds_the_nearest_point_of_a_folded_surf
         oracle[i] = np.sqrt(res.fun)
     d = distance_to_surface(s.knots_u, s.knots_v, s.control_points, pts, search_above=0.0)[2]
     np.testing.assert_allclose(d, oracle, atol=1e-6)
+
+
+def test_fits_compare_by_their_error_beyond_the_tolerance():
+    from cam.fit.solve import SurfaceFit
+
+    def fit(samples, surface):
+        d = np.asarray(samples, dtype=np.float64)
+        z = np.zeros(d.size)
+        return SurfaceFit(np.zeros(8), np.zeros(8), np.zeros((4, 4, 3)), z, z, d, z.astype(bool),
+                          np.ones(d.size, dtype=bool), 0, surface_u=np.zeros(len(surface)),
+                          surface_v=np.zeros(len(surface)), surface_distance=np.asarray(surface, dtype=np.float64))
+
+    # Both are held 0.1 mm off by a border point; inside, one is within the tolerance of 0.03 mm.
+    held = fit([0.05, 0.04, 0.01], [0.1, 0.0])
+    better = fit([0.02, 0.01, 0.01], [0.1, 0.0])
+    assert held.max_error == better.max_error == 0.1
+    assert better.excess(0.03) == pytest.approx((0.07**2) / 2) and held.excess(0.03) == pytest.approx(
+        (0.02**2 + 0.01**2) / 3 + (0.07**2) / 2)
+    assert better.improves_on(held, 0.03) and not held.improves_on(better, 0.03)
+    # Within the tolerance everywhere, the largest distance decides.
+    assert fit([0.01], [0.02]).improves_on(fit([0.01], [0.025]), 0.03)

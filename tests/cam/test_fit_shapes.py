@@ -25,6 +25,11 @@ def paraboloid(a):
     return lambda s, t: np.stack([s, t, a * (s**2 + t**2)], axis=-1)
 
 
+def bump(height, s0, t0, sigma):
+    """A Gaussian bump of `height` mm and width `sigma` mm centred at (s0, t0) on the plane z = 0."""
+    return lambda s, t: np.stack([s, t, height * np.exp(-((s - s0) ** 2 + (t - t0) ** 2) / (2 * sigma**2))], axis=-1)
+
+
 def ridge(s0, slope):
     """Two planes meeting in a crease along s = s0 (a roof)."""
     return lambda s, t: np.stack([s, t, slope * (s0 - np.abs(s - s0))], axis=-1)

@@ -7,9 +7,13 @@ import pytest
 
 from cam.fit.boundary import side_params
 from cam.fit.patches import fit_patches
-from tests.cam.test_fit_shapes import case, cylinder, paraboloid, poly, ridge
+from cam.closest import closest_points, mesh_index
+from tests.cam.test_fit_shapes import bump, case, cylinder, paraboloid, poly, ridge
 
-EXACT = dict(samples_per_face=0, normal_weight_mm=0.0, tolerance_mm=1e-9, max_refinements=0, iterations=20)
+# Exact data only: the vertices of the mesh lie on the polynomial, its faces (the mesh terms, samples
+# inside faces) only near it.
+EXACT = dict(samples_per_face=0, mesh_weight=0.0, normal_weight_mm=0.0, tolerance_mm=1e-9, max_refinements=0,
+             iterations=20)
 
 
 def _border_gap(result, grids, a, side_a, b, side_b, t_a, t_b):
@@ -120,6 +124,35 @@ def test_a_crease_inside_a_patch_is_reported_not_accepted():
     # Split at the crease, the same part fits, and the two faces share the crease exactly.
     split = fit_patches(V, [ids[:6], ids[5:]], MV, MF, tolerance_mm=0.005)
     assert split.over_tolerance == [] and split.max_gap_mm <= 1e-9
+
+
+def _dense_distance(surface, MV, MF, n: int = 121) -> float:
+    """Largest distance (mm) from the surface, on an n x n grid of parameters, to the mesh."""
+    t = np.linspace(0, 1, n)
+    uu, vv = np.meshgrid(t, t, indexing="ij")
+    return float(closest_points(mesh_index(MV, MF), surface.evaluate(uu, vv).reshape(-1, 3))[1].max())
+
+
+def test_the_mesh_holds_the_surface_between_sparse_samples():
+    # A fine mesh, but the fit sees only its vertices, thinned to 8 per quad: between them a
+    # surface fitted to the samples alone leaves the mesh by more than the tolerance.
+    V, ids, MV, MF = case(bump(1.0, 7.3, 4.6, 2.0), (16, 10), (8, 5), refine=8)
+    sparse = dict(samples_per_face=0, max_samples_per_quad=8.0, max_refinements=0)
+    (alone,) = fit_patches(V, [ids], MV, MF, mesh_weight=0.0, **sparse).patches
+    (held,) = fit_patches(V, [ids], MV, MF, **sparse).patches
+    assert _dense_distance(alone.surface, MV, MF) > 0.032
+    assert held.within_tolerance and _dense_distance(held.surface, MV, MF) <= 0.032
+
+
+def test_refinement_brings_a_narrow_bump_within_tolerance():
+    # A bump 0.9 mm wide under knots 4 mm apart: only refitting after knot insertion can follow it.
+    V, ids, MV, MF = case(bump(1.0, 7.3, 4.6, 0.9), (16, 10), (16, 10), refine=6)
+    (coarse,) = fit_patches(V, [ids], MV, MF, knot_spacing=4.0, max_refinements=0).patches
+    (fine,) = fit_patches(V, [ids], MV, MF, knot_spacing=4.0, max_refinements=3).patches
+    assert coarse.max_error_mm > 0.2
+    assert fine.within_tolerance and fine.max_error_mm <= 0.032
+    assert _dense_distance(fine.surface, MV, MF) <= 0.032
+    assert fine.surface.control_points.size > 4 * coarse.surface.control_points.size
 
 
 def test_inputs_are_checked():
