@@ -88,7 +88,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                 smoothing_mm2: float = 1e-4,
                 smoothing_floor: float = 1e-6, param_weight: float = 0.01, normal_weight_mm: float = 0.02,
                 anchor_weight: float = 1.0, iterations: int = 8, max_refinements: int = 3,
-                min_span: float = 0.125, kink_angle_deg: float = 40.0, mesh_weight: float = 1.0,
+                min_span: float = 0.125, kink_angle_deg: float = 30.0, mesh_weight: float = 1.0,
                 on_progress: Callable[[float, str], None] | None = None) -> FitResult:
     """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
 

@@ -115,6 +115,30 @@ def test_a_side_that_turns_a_corner_gets_a_c0_knot_line_there():
     assert np.linalg.norm(border - corner, axis=1).min() > smooth.tolerance_mm
 
 
+def test_a_turn_of_35_degrees_is_a_corner_too():
+    # The shared t = 3 line turns by 35 degrees at s = 4 (the outer t = 0 line by 54.5).
+    slope = 2.0 * np.tan(np.radians(35.0))
+
+    def bent(s, t):
+        b = slope * np.maximum(s - 4.0, 0.0)
+        x, y = s, b + (14.0 - b) * t / 6.0
+        return np.stack([x, y, 0.004 * (x**2 + y**2)], axis=-1)
+
+    V, ids, MV, MF = case(bent, (8, 6), (8, 6))
+    grids = [ids[:, :4], ids[:, 3:]]
+    corner = V[ids[4, 3]]
+    u = np.linspace(0, 1, 4001)
+    result = fit_patches(V, grids, MV, MF)
+    assert result.max_gap_mm <= 1e-9
+    border = result.patches[0].surface.evaluate(u, np.ones(u.size))
+    assert np.linalg.norm(border - corner, axis=1).min() <= 1e-9
+    # A cubic through the turn, C2 there (the threshold was 40 degrees), misses the corner by
+    # more than the tolerance.
+    smooth = fit_patches(V, grids, MV, MF, kink_angle_deg=40.0)
+    border = smooth.patches[0].surface.evaluate(u, np.ones(u.size))
+    assert np.linalg.norm(border - corner, axis=1).min() > smooth.tolerance_mm
+
+
 def test_a_crease_inside_a_patch_is_reported_not_accepted():
     V, ids, MV, MF = case(ridge(10.0, 0.8), (20, 10), (10, 5))
     result = fit_patches(V, [ids], MV, MF, tolerance_mm=0.005, max_refinements=2)
