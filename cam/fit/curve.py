@@ -17,7 +17,7 @@ import numpy as np
 from cam.fit.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
 from cam.fit.refine import split_spans
 
-__all__ = ["CurveFit", "fit_curve", "lattice_knots", "turns_back"]
+__all__ = ["CurveFit", "fit_curve", "turns_back"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,16 +28,6 @@ class CurveFit:
     knots: np.ndarray
     control_points: np.ndarray
     max_error: float
-
-
-def lattice_knots(start: float, end: float, spacing: float, *, degree: int = 3) -> np.ndarray:
-    """Clamped knots on [start, end] with interior knots at the multiples of `spacing` inside it."""
-    if not end > start:
-        raise ValueError(f"curve span must be positive, got [{start}, {end}]")
-    first = np.floor(start / spacing) + 1
-    inner = np.arange(first, np.ceil(end / spacing)) * spacing
-    inner = inner[(inner > start) & (inner < end)]
-    return np.concatenate([[start] * (degree + 1), inner, [end] * (degree + 1)]).astype(np.float64)
 
 
 def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constraints: list[tuple[float, np.ndarray]],

@@ -11,8 +11,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["insert_knot", "refine_knots", "merge_knots", "split_curve", "sub_curve", "join_curves",
+__all__ = ["lattice_knots", "insert_knot", "refine_knots", "merge_knots", "split_curve", "sub_curve", "join_curves",
            "reverse_curve", "shift_curve", "refine_surface"]
+
+
+def lattice_knots(start: float, end: float, spacing: float, *, degree: int = 3) -> np.ndarray:
+    """Clamped knots on [start, end] with interior knots at the multiples of `spacing` inside it: float64."""
+    if not end > start:
+        raise ValueError(f"knot span must be positive, got [{start}, {end}]")
+    first = np.floor(start / spacing) + 1
+    inner = np.arange(first, np.ceil(end / spacing)) * spacing
+    inner = inner[(inner > start) & (inner < end)]
+    return np.concatenate([[start] * (degree + 1), inner, [end] * (degree + 1)]).astype(np.float64)
 
 
 def insert_knot(knots: np.ndarray, control_points: np.ndarray, t: float, *, degree: int = 3

@@ -25,8 +25,8 @@ from cam.fit.basis import evaluate_surface, span_params
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
 from cam.closest import closest_points, mesh_index
 from cam.fit.crease import edge_keys, mesh_creases, snap_points, vertex_positions
-from cam.fit.curve import CurveFit, fit_curve, lattice_knots
-from cam.fit.knots import join_curves, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
+from cam.fit.curve import CurveFit, fit_curve
+from cam.fit.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
 from cam.fit.param import assign_samples, distance_to_surface, grid_anchors, mesh_samples
 from cam.fit.refine import fit_refined
 from cam.fit.solve import SurfaceFit

@@ -26,6 +26,7 @@ from scipy.sparse.linalg import splu, spsolve
 from cam.bspline import c0_knots, find_folds, make_bspline_surface
 from cam.closest import MeshIndex, closest_points
 from cam.fit.basis import evaluate_surface, span_params, surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
+from cam.fit.knots import lattice_knots
 from cam.fit.param import Anchors, foot_frames, project_points
 
 __all__ = ["SurfaceFit", "fit_surface", "sdm_weights"]
@@ -184,9 +185,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                          find_folds(make_bspline_surface(cp, ku, kv, degree=degree))[0], **extra)
         # Squared-distance steps leave tangential motion almost free, and as the smoothing decays
         # a net can fold while it hugs the data ever closer: a step that folds more is no progress.
-        regular = best is None or fit.folded <= best.folded
-        folds_more = not regular
-        if best is None or fit.folded < best.folded or regular and fit.improves_on(best, tolerance_mm):
+        folds_more = best is not None and fit.folded > best.folded
+        if best is None or fit.folded < best.folded or not folds_more and fit.improves_on(best, tolerance_mm):
             stalls = 0 if best is None or fit.folded < best.folded or fit.improves_on(best, tolerance_mm, by=0.05) \
                 else stalls + 1
             best, state = fit, (frame, along, off, grid)
@@ -243,7 +243,8 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree):
     their triangles (m, 3), and ok bool (m,): the mesh lies along its triangle's normal from the
     point (within 27°) and the triangle faces the way the surface does (within 60°).
     """
-    uu, vv = np.meshgrid(_spaced(ku, spacing), _spaced(kv, spacing), indexing="ij")
+    # The lattice's distinct values: the multiples of `spacing` inside the domain, and its ends.
+    uu, vv = np.meshgrid(*(np.unique(lattice_knots(k[0], k[-1], spacing)) for k in (ku, kv)), indexing="ij")
     u, v = uu.ravel(), vv.ravel()
     frame = foot_frames(ku, kv, cp, u, v, degree=degree)
     near, dist, tri, _ = closest_points(mesh, frame.point)
@@ -258,13 +259,6 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree):
     square = np.linalg.norm(r - along[:, None] * fn, axis=1) <= 1e-6 + 0.5 * np.abs(along)
     ok = square & (np.abs(_dot(fn, frame.normal)) > 0.5)
     return u, v, dist, near, fn, ok
-
-
-def _spaced(knots: np.ndarray, spacing: float) -> np.ndarray:
-    """The multiples of `spacing` inside the knots' domain, and its two ends."""
-    lo, hi = float(knots[0]), float(knots[-1])
-    inner = np.arange(np.floor(lo / spacing) + 1, np.ceil(hi / spacing)) * spacing
-    return np.concatenate([[lo], inner[(inner > lo) & (inner < hi)], [hi]])
 
 
 def _speed2(tangent: np.ndarray, length_mm: float) -> np.ndarray:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cam.fit.curve import fit_curve, lattice_knots, turns_back
+from cam.fit.curve import fit_curve, turns_back
+from cam.fit.knots import lattice_knots
 
 ENDS = [(0.0, np.zeros(3)), (10.0, np.array([10.0, 0.0, 0.0]))]
 
