@@ -28,7 +28,7 @@ from cam.fit.crease import edge_keys, mesh_creases, snap_points, vertex_position
 from cam.fit.curve import CurveFit, fit_curve
 from cam.fit.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
 from cam.fit.param import assign_samples, distance_to_surface, grid_anchors, mesh_samples
-from cam.fit.refine import fit_refined
+from cam.fit.refine import Refined, fit_refined
 from cam.fit.solve import SurfaceFit
 
 __all__ = ["PatchFit", "FitResult", "fit_patches"]
@@ -159,7 +159,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         return (np.concatenate([P[sel], a.points]), np.concatenate([N[sel], a.normals]),
                 np.concatenate([su[sel], a.u]), np.concatenate([sv[sel], a.v]))
 
-    def free_fit(k: int, start: SurfaceFit | None) -> SurfaceFit:
+    def free_fit(k: int, start: SurfaceFit | None) -> Refined:
         R, C = shape[k]
         kw = dict(knots_u=merge_knots(lattice_knots(0, R, knot_spacing), np.repeat(kinks[(k, "v0")], 3),
                                       np.repeat(kinks[(k, "v1")], 3)),
@@ -170,28 +170,34 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         pts, nrm, u, v = data(k)
         pull = tuple(not sharp_side[(k, name)] for name in SIDES)
         return fit_refined(pts, nrm, u, v, tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                           max_refinements=max_refinements, min_span=min_span, pull_sides=pull, **kw, **opts)[0]
+                           max_refinements=max_refinements, min_span=min_span, pull_sides=pull, **kw, **opts)
 
-    free: list[SurfaceFit] = []
+    # The free fits are refined for their borders, where the boundary curves are fitted. The
+    # constrained fits start from them unrefined: knot lines run across the whole patch, and the
+    # spans a free fit split for one border would free every row and column to follow the mesh's
+    # facets (ripples no tolerance sees, concave tighter than the ball). They refine themselves
+    # where they need it.
+    free: list[Refined] = []
     for k in range(n):
         free.append(free_fit(k, None))
         report(0.35 * (k + 1) / n, f"fitted patch {k + 1} of {n} on its own")
-    moved = _reassign(P, owner, su, sv, free, layout, tolerance_mm)
+    coarse = [f.unrefined for f in free]
+    moved = _reassign(P, owner, su, sv, [f.fit for f in free], layout, tolerance_mm)
     for k in sorted(moved):
-        free[k] = free_fit(k, free[k])
+        free[k] = free_fit(k, free[k].fit)
     report(0.4, "fitting the shared boundary curves")
-    curves, curve_err = _fit_curves(layout, grids, shape, free, positions, index, creases, sharp, knot_spacing,
-                                    tolerance_mm, max_refinements, min_span, kink_angle_deg)
+    curves, curve_err = _fit_curves(layout, grids, shape, [f.fit for f in free], positions, index, creases, sharp,
+                                    knot_spacing, tolerance_mm, max_refinements, min_span, kink_angle_deg)
     final: list[SurfaceFit] = []
     rounds: list[int] = []
     for k in range(n):
-        ku, kv, cp = _constrained_start(k, layout, free[k], curves)
+        ku, kv, cp = _constrained_start(k, layout, coarse[k], curves)
         pts, nrm, u, v = data(k)
-        fit, r = fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
-                             tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                             max_refinements=max_refinements, min_span=min_span, **opts)
-        final.append(fit)
-        rounds.append(r)
+        done = fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
+                           tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
+                           max_refinements=max_refinements, min_span=min_span, **opts)
+        final.append(done.fit)
+        rounds.append(done.rounds)
         report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = _sample_errors(P_all, asg_all.patch, final, layout, tolerance_mm)

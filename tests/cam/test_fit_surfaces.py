@@ -176,7 +176,21 @@ def test_refinement_brings_a_narrow_bump_within_tolerance():
     assert coarse.max_error_mm > 0.2
     assert fine.within_tolerance and fine.max_error_mm <= 0.032
     assert _dense_distance(fine.surface, MV, MF) <= 0.032
-    assert fine.surface.control_points.size > 4 * coarse.surface.control_points.size
+    # The surface fitted to its borders split its own spans: it does not take its free fit's knots.
+    assert fine.refinements >= 1 and fine.surface.control_points.size > 2 * coarse.surface.control_points.size
+
+
+def test_the_free_fits_refinement_stays_out_of_the_final_surface():
+    # A cylinder meshed with one triangle pair per quad: its facets leave the cylinder by 0.05 mm,
+    # so the free fit splits spans (in both directions: refinement splits the spans of a sample) to
+    # place its borders. Along the axis the part is straight, and the surface fitted to the boundary
+    # curves needs no knot there beyond those it started with: inherited ones would only free its
+    # rows to follow the facets.
+    V, ids, MV, MF = case(cylinder(10.0), (20, 10), (10, 5), refine=1)
+    (p,) = fit_patches(V, [ids], MV, MF).patches
+    (q,) = fit_patches(V, [ids], MV, MF, max_refinements=0).patches
+    assert p.within_tolerance and p.refinements == 0
+    assert p.surface.control_points.shape[1] == q.surface.control_points.shape[1] == 6
 
 
 def test_inputs_are_checked():
