@@ -173,10 +173,10 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                            max_refinements=max_refinements, min_span=min_span, pull_sides=pull, **kw, **opts)
 
     # The free fits are refined for their borders, where the boundary curves are fitted. The
-    # constrained fits start from them unrefined: knot lines run across the whole patch, and the
-    # spans a free fit split for one border would free every row and column to follow the mesh's
-    # facets (ripples no tolerance sees, concave tighter than the ball). They refine themselves
-    # where they need it.
+    # constrained fits start from the first free fits, before refinement (and before samples moved:
+    # they refit from the top anyway): knot lines run across the whole patch, and the spans a free
+    # fit split for one border would free every row and column to follow the mesh's facets (ripples
+    # no tolerance sees, concave tighter than the ball). They refine themselves where they need it.
     free: list[Refined] = []
     for k in range(n):
         free.append(free_fit(k, None))
