@@ -125,25 +125,57 @@ def gap_scallop(patch: Patch, *, along: str, fixed0: float, fixed1: float, lo: f
     return np.where(interior | (hi - lo <= 0), h, 0.0)
 
 
+def _hollow_on_line(patch: Patch, along: str, fixed: float, q: np.ndarray, r: float) -> TooConcave | None:
+    """`TooConcave` naming every parameter q (float (n,)) of the iso-line where the ball does not fit, or None.
+
+    `check_concavity` looks at a grid; a hollow narrower than its spacing shows first on a ring's line,
+    where the scallop relations have no answer. Points whose curvature is undefined are not hollows.
+    """
+    fr = iso_line_frame(patch, along, fixed, q)
+    kmin, _ = principal_curvatures(fr)
+    bad = np.isfinite(kmin) & ~fits_concave(kmin, r)
+    if not np.any(bad):
+        return None
+    i = int(np.argmin(np.where(bad, kmin, np.inf)))
+    radius = -1.0 / kmin[i]
+    line = np.full(int(bad.sum()), float(fixed))
+    uv = np.stack([q[bad], line] if along == "u" else [line, q[bad]], -1)
+    return TooConcave(concave_message(radius, r, fr.p[i]), radius_mm=float(radius), point=fr.p[i], uv=uv)
+
+
 def side_step(patch: Patch, *, along: str, fixed: float, lo: float, hi: float, direction: float, limit: float,
               r: float, h: float, samples: int, start: float | None = None) -> tuple[float, float]:
-    """Largest checked step (parameter units, ≥ 0) from iso-line `fixed` towards `limit`, and its scallop."""
+    """Largest checked step (parameter units, ≥ 0) from iso-line `fixed` towards `limit`, and its scallop.
+
+    Raises `TooConcave` (with the parameters of the points) when the ball does not fit a hollow on
+    the line or on the next one.
+    """
     room = abs(limit - fixed)
     if room <= 0:
         return 0.0, 0.0
+    q0 = np.linspace(lo, hi, samples)
     if start is None:
-        fr = iso_line_frame(patch, along, fixed, np.linspace(lo, hi, samples))
+        fr = iso_line_frame(patch, along, fixed, q0)
         kappa, speed = across_iso_line(fr, along)
         step = float(np.min(arc_gap(h, r, kappa) / speed))
     else:
         step = start
-    step = min(step, room)
+    step = min(step, room) if np.isfinite(step) else room
     worst = 0.0
     for _ in range(30):
         worst = float(np.max(gap_scallop(patch, along=along, fixed0=fixed, fixed1=fixed + direction * step,
                                          lo=lo, hi=hi, r=r, samples=samples)))
         if worst <= h * (1 + 1e-9):
             return step, worst
+        if not np.isfinite(worst):
+            # No scallop relation holds: the ball does not fit a hollow on one of the two lines, or the
+            # step is wider than a hollow's centre circle (then a shorter one has an answer).
+            for line, q in ((fixed, q0), (fixed + direction * step, np.linspace(lo, hi, 4 * samples))):
+                hollow = _hollow_on_line(patch, along, line, q, r)
+                if hollow is not None:
+                    raise hollow
+            step *= 0.5
+            continue
         step *= 0.995 * np.sqrt(h / worst)  # the scallop grows about quadratically with the step
     what = "curvature undefined there" if not np.isfinite(worst) else f"worst scallop {worst:.4g} mm"
     raise NotPlannable(f"no pass interval keeps the scallop within {h:.4g} mm ({what}): the fitted surface is "

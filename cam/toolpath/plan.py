@@ -20,7 +20,7 @@ from cam.toolpath.access import Assignment, Setup, assign_setups, machine_patche
 from cam.toolpath.chord import discretize, lattices
 from cam.toolpath.geometry import NotPlannable, Patch, frame
 from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
-from cam.toolpath.grid import TooConcave, ring_grid
+from cam.toolpath.grid import TooConcave, concave_message, ring_grid
 from cam.toolpath.region import Region, area_share, finishable_region, sub_surface
 from cam.toolpath.link import MoveList, link_passes, order_patches
 from cam.toolpath.rings import ring_path
@@ -194,8 +194,12 @@ def exclude_points(box: tuple[float, float, float, float], uv: np.ndarray, *,
 
 def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_fraction: float = 0.1,
                samples_per_line: int = 32, strategy: str = "adaptive", reach_fraction: float = 1.0,
-               check_cancel=None) -> PatchPlan:
-    """Plan one patch in its setup's machine frame; raises `TooConcave` when the ball does not fit."""
+               check_cancel=None, to_part=None) -> PatchPlan:
+    """Plan one patch in its setup's machine frame; raises `TooConcave` when the ball does not fit.
+
+    to_part maps machine-frame points (float (3,)) to the part frame the user's files are in, for the
+    points the messages name; default: they are named as they are.
+    """
     t0 = time.perf_counter()
     check_cancel = check_cancel or (lambda: None)
     h_s, tol = (1 - chord_fraction) * h - ROUNDING_MM, chord_fraction * h
@@ -216,11 +220,13 @@ def plan_patch(patch: Patch, index: SurfaceIndex, *, r: float, h: float, chord_f
             # A hollow between the samples `finishable_region` looked at: the rectangle gives it up
             # like a lifted position; a hollow it cannot get rid of is reported as it was found.
             shrinks += 1
-            if shrinks > MAX_REPLANS or not len(exc.uv):
-                raise
-            smaller = exclude_points(region, exc.uv)
-            if smaller[0] >= smaller[1] or smaller[2] >= smaller[3]:
-                raise
+            if to_part is not None:
+                where = to_part(exc.point)
+                exc = TooConcave(concave_message(exc.radius_mm, r, where), radius_mm=exc.radius_mm, point=where,
+                                 uv=exc.uv)
+            smaller = exclude_points(region, exc.uv) if len(exc.uv) else region
+            if shrinks > MAX_REPLANS or smaller[0] >= smaller[1] or smaller[2] >= smaller[3] or smaller == region:
+                raise exc
             region = smaller
             hollows.append(str(exc))
             continue
@@ -500,6 +506,8 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
         patches = machine_patches(ids, surfaces, signs, setup)
         solid = machine_patches(ids, whole, signs, setup)  # trimmed-off strips are still part of the part
         index = build_index(solid, spacing_mm=max(r / 6, 0.2))
+        # Messages name points in the part's frame, as finishable_region's do, not in this setup's.
+        to_part = lambda x, s=setup: s.rotation.T @ (np.asarray(x, dtype=np.float64) - s.translation)  # noqa: E731
         plans = []
         for p in patches:
             if p.id not in mine:
@@ -510,7 +518,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
             try:
                 plans.append(plan_patch(p, index, r=r, h=h, chord_fraction=chord_fraction,
                                         samples_per_line=samples_per_line, strategy=strategy, reach_fraction=share,
-                                        check_cancel=check_cancel))
+                                        check_cancel=check_cancel, to_part=to_part))
             except (TooConcave, Unreachable, NotPlannable) as exc:
                 unmachined.append({"patch": p.id, "reason": str(exc)})
             else:
@@ -520,7 +528,8 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
                     more, claims = _plan_beside(p, plans[-1].region, whole[ids.index(p.id)], index,
                                                 trimmed=trimmed.get(p.id), r=r, h=h, chord_fraction=chord_fraction,
                                                 samples_per_line=samples_per_line, strategy=strategy,
-                                                reach_fraction=share, check_cancel=check_cancel)
+                                                reach_fraction=share, check_cancel=check_cancel,
+                                                to_part=to_part)
                     plans += more
                     partial += claims
             done += 1

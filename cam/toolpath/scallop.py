@@ -63,7 +63,7 @@ def half_chord(h: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np
     h = np.asarray(h, dtype=np.float64)
     k = np.asarray(kappa, dtype=np.float64)
     _check(r, h)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):  # 1/|κ_c| of a hollow flat to round-off is inf
         q = h * (2 * r - h) * (2 + h * k) * (2 + 2 * r * k + h * k)
         a = np.sqrt(q) / (2 * (1 + h * k))
         # In a hollow the centres lie on a circle of radius (R − r); no wider chord exists, and a target the

@@ -475,7 +475,10 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     x, y = np.meshgrid(20 * gu, 16 * gv, indexing="ij")
     z = -0.11 * np.exp(-((x - 1.875) / 0.8) ** 2)  # radius 0.8² / 0.22 = 2.91 mm at the bottom
     plate = Patch(1, make_bspline_surface(np.stack([x, y, z], -1), ku, kv))
-    pp = plan_patch(plate, build_index([plate], spacing_mm=0.5), r=3.0, h=0.16)
+    # The plate lies in a setup's frame 5 mm along x and 10 mm up from the part's: the reason names the
+    # hollow where the user's files have it.
+    pp = plan_patch(plate, build_index([plate], spacing_mm=0.5), r=3.0, h=0.16,
+                    to_part=lambda x: x - np.array([5.0, 0.0, 10.0]))
     u0, u1, v0, v1 = pp.region
     assert 1.875 / 20 < u0 < 0.25 and (u1, v0, v1) == (1.0, 0.0, 1.0)
     assert pp.certified_scallop_mm <= 0.16 and pp.replans >= 1
@@ -485,3 +488,32 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     assert pp.hollows and not pp.touched
     reason = _claim(plate.surface, pp, None)["reason"]
     assert reason.startswith("concave radius of curvature 2.9") and "neighbouring" not in reason
+    assert "near [-3.125, " in reason and ", -10.1" in reason
+
+
+@pytest.mark.parametrize("on", ["line", "next line"])
+def test_a_hollow_between_the_concavity_samples_is_reported_where_a_ring_meets_it(on):
+    # A 16 x 7 mm plate with a narrow trough along x, concave radius 2.6 mm at its bottom (under the
+    # 3 mm ball) over a band 0.07 mm wide, halfway between two rows of check_concavity's 33 x 33 grid
+    # (0.219 mm apart): the grid misses it. A ring's line that runs along the trough, or the next line
+    # a step lands on, has no scallop relation there; the step names the hollow and where it lies on
+    # the line (so plan_patch can cut it out), instead of giving up the patch as degenerate.
+    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+    from cam.toolpath.grid import side_step
+
+    nu, nv, width, height = 9, 201, 16.0, 7.0
+    ku, kv = clamped_uniform_knots(nu), clamped_uniform_knots(nv)
+    gu = np.array([ku[i + 1:i + 4].mean() for i in range(nu)])  # Greville abscissae
+    gv = np.array([kv[j + 1:j + 4].mean() for j in range(nv)])
+    x, y = np.meshgrid(width * gu, height * gv, indexing="ij")
+    v_trough = 12.5 / 32
+    z = -0.004 * np.exp(-((y - height * v_trough) / 0.14) ** 2)
+    plate = Patch(1, make_bspline_surface(np.stack([x, y, z], -1), ku, kv))
+    check_concavity(plate, 3.0)  # does not raise
+    fixed, start = (v_trough, None) if on == "line" else (0.2, v_trough - 0.2)
+    with pytest.raises(TooConcave) as err:
+        side_step(plate, along="u", fixed=fixed, lo=0.0, hi=1.0, direction=1.0, limit=1.0, r=3.0, h=0.144,
+                  samples=32, start=start)
+    assert 2.4 < err.value.radius_mm < 3.0 and "use a smaller ball" in str(err.value)
+    assert len(err.value.uv) >= 32 and np.all(err.value.uv[:, 1] == pytest.approx(v_trough, abs=1e-12))
+    assert err.value.point[1] == pytest.approx(height * v_trough, abs=1e-6)
