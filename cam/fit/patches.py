@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from cam.bspline import BSplineSurface, find_folds, make_bspline_surface
+from cam.bspline import FOLD_CHECK_SAMPLES, BSplineSurface, find_folds, make_bspline_surface
 from cam.fit.basis import evaluate_surface, span_params
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
 from cam.closest import closest_points, mesh_index
@@ -42,8 +42,9 @@ class PatchFit:
     (a sample beyond the border counts against the nearest neighbour), max_error_mm also
     covers surface_to_mesh_mm: the largest distance from points of the surface to the mesh;
     boundary_error_mm: the largest distance of its boundary curves from the mesh;
-    folded_fraction: share of the surface that folds over itself (`cam.bspline.find_folds`; 0 for a
-    regular patch), reported because a fold can hug the mesh and still pass the distance test.
+    folded_fraction: share of the surface that folds over itself (`cam.bspline.find_folds` on the grid the
+    planner checks, `FOLD_CHECK_SAMPLES`; 0 for a regular patch), reported because a fold can hug the mesh
+    and still pass the distance test.
     """
 
     index: int
@@ -214,7 +215,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                             surface_to_mesh_mm=s2m, boundary_error_mm=berr, samples=int(e.size), refinements=rounds[k],
                             within_tolerance=worst <= tolerance_mm, neighbours=layout.neighbours[k],
                             side_neighbours={s: layout.side_neighbours[(k, s)] for s in SIDES},
-                            folded_fraction=find_folds(surf)[0]))
+                            folded_fraction=find_folds(surf, samples=FOLD_CHECK_SAMPLES)[0]))
     report(1.0, "fitted")
     return FitResult(patches=out, max_gap_mm=_max_gap(out, layout, shape), curves=len(curves),
                      tolerance_mm=tolerance_mm)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import BSplineSurface, fold_mask
+from cam.bspline import FOLD_CHECK_SAMPLES, BSplineSurface, fold_mask
 from cam.fit.knots import sub_curve
 from cam.toolpath.geometry import Patch, frame, principal_curvatures
 from cam.toolpath.grid import concave_message
@@ -34,7 +34,7 @@ class Region:
     reason: str
 
 
-def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = 65) -> Region:
+def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = FOLD_CHECK_SAMPLES) -> Region:
     """The parameter rectangle of `patch` of largest area without folds or hollows of radius ≤ `tool_radius_mm`.
 
     Checked on a samples x samples grid: the rectangle's sides lie on grid lines and no sample on

@@ -184,6 +184,24 @@ def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
     assert tips[:, 0].max() <= float(lip.evaluate(np.array([region.box[1]]), np.array([0.5]))[0, 0]) + 1e-6
 
 
+def test_a_fold_narrower_than_the_fits_own_grid_is_reported_where_the_planner_finds_it():
+    # A plane with one of 31 control columns pulled back two column steps: a fold 0.3 mm wide, between
+    # the samples of the 33 x 33 grid the fit compares its steps on. The fit's report uses the grid
+    # the planner checks, so surfaces.json does not call a surface clean that the planner trims.
+    from cam.bspline import FOLD_CHECK_SAMPLES, clamped_uniform_knots, find_folds, make_bspline_surface
+    from cam.toolpath.region import finishable_region
+
+    g = np.linspace(0, 10, 31)
+    X, Y = np.meshgrid(g, np.linspace(0, 10, 5), indexing="ij")
+    P = np.stack([X, Y, np.zeros_like(X)], -1)
+    P[16, :, 0] -= 2 * (g[1] - g[0])
+    sheet = make_bspline_surface(P, clamped_uniform_knots(31), clamped_uniform_knots(5))
+    assert find_folds(sheet, samples=33)[0] == 0.0
+    assert find_folds(sheet, samples=FOLD_CHECK_SAMPLES)[0] > 0
+    region = finishable_region(Patch(2, sheet), 3.0)
+    assert "folds over itself" in region.reason and region.kept < 1.0
+
+
 def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
     from cam.bspline import clamped_uniform_knots, make_bspline_surface
     from cam.toolpath.region import finishable_region
