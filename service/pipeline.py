@@ -152,13 +152,78 @@ def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[
 
 def cache_key(spec: StageSpec, params: dict[str, Any], input_hashes: dict[str, str],
               settings: dict[str, Any]) -> str:
-    """hash(stage, stage code version, its params, its input artifact hashes) as in DESIGN."""
+    """hash(stage, stage code version, its params, its input artifact hashes) as in DESIGN.
+
+    The code version is the declared `version` and `code_digest` of the implementation: a changed
+    deployment does not reuse what older code stored, whether or not someone bumped the version.
+    """
     material = {
         "stage": spec.name,
         "version": spec.version,
+        "code": code_digest(spec.run.partition(":")[0]),
         "params": {g: params.get(g, {}) for g in spec.param_groups},
         "settings": {k: settings[k] for k in spec.settings},
         "inputs": {k: input_hashes[k] for k in sorted(input_hashes) if k in spec.inputs},
     }
     text = json.dumps(material, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def code_digest(module: str) -> str:
+    """sha256 over the source of `module` and of every module of its own top-level package, or of
+    cam, worker and service, that it imports, directly or through them (any import statement,
+    function-level ones too).
+
+    Read from the files each time (a few dozen, milliseconds), so a file changed under a running
+    process counts; a module whose source cannot be found (a compiled extension) counts by name.
+    """
+    roots = {"cam", "worker", "service", module.split(".")[0]}
+    digest = hashlib.sha256()
+    todo, seen = [module], set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        path = _source_path(name)
+        if path is None:
+            continue
+        source = path.read_bytes()
+        digest.update(name.encode() + b"\0" + source + b"\0")
+        for found in _imports(name, source, is_package=path.name == "__init__.py"):
+            parts = found.split(".")
+            if parts[0] in roots:
+                # The package __init__ files on the way run on import too.
+                todo += [".".join(parts[:i]) for i in range(1, len(parts) + 1)]
+    return digest.hexdigest()
+
+
+def _source_path(name: str):
+    from importlib.util import find_spec
+    from pathlib import Path
+
+    try:
+        found = find_spec(name)
+    except (ImportError, ValueError):  # `from pkg import attribute`: not a module
+        return None
+    if found is None or not found.origin or not found.origin.endswith(".py"):
+        return None
+    return Path(found.origin)
+
+
+def _imports(name: str, source: bytes, *, is_package: bool) -> list[str]:
+    """Absolute names of what a module's import statements name (for `from a import b`: a and a.b)."""
+    import ast
+
+    package = name if is_package else name.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            out += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            out += [base] + [f"{base}.{alias.name}" for alias in node.names if alias.name != "*"]
+    return out

@@ -101,6 +101,27 @@ def test_cache_key_depends_only_on_what_the_stage_reads():
     assert key != cache_key(spec, base, {"input": "a" * 64}, {**settings, "max_points": 99})
 
 
+def test_cache_key_follows_the_code_the_stage_runs(tmp_path, monkeypatch):
+    # A plugin stage whose module imports a helper inside its function: editing the helper changes the
+    # key (a deployment with new code does not reuse old results), editing a module it never imports does not.
+    from service.pipeline import StageSpec
+
+    pkg = tmp_path / "plugpkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "stage.py").write_text("def run(ctx):\n    from .helper import scale\n    return scale\n")
+    (pkg / "helper.py").write_text("scale = 1.0\n")
+    (pkg / "other.py").write_text("unused = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    spec = StageSpec(name="extra", version="1", inputs=(), outputs=(), param_groups=(), run="plugpkg.stage:run")
+    key = cache_key(spec, {}, {}, {})
+    assert key == cache_key(spec, {}, {}, {})
+    (pkg / "other.py").write_text("unused = 2\n")
+    assert cache_key(spec, {}, {}, {}) == key
+    (pkg / "helper.py").write_text("scale = 2.0\n")
+    assert cache_key(spec, {}, {}, {}) != key
+
+
 def test_a_lapsed_stage_of_a_canceled_job_is_canceled_not_requeued(Session):
     job_id = _job(Session, ("ingest",))
     with Session.begin() as s:
