@@ -174,8 +174,9 @@ def code_digest(module: str) -> str:
     cam, worker and service, that it imports, directly or through them (any import statement,
     function-level ones too).
 
-    Read from the files each time (a few dozen, milliseconds), so a file changed under a running
-    process counts; a module whose source cannot be found (a compiled extension) counts by name.
+    Read from the files each time (tens of files, tens to hundreds of milliseconds), so a file changed
+    under a running process counts; what has no Python source (a compiled extension, or a name that
+    is an attribute, not a module) is left out.
     """
     roots = {"cam", "worker", "service", module.split(".")[0]}
     digest = hashlib.sha256()

@@ -28,6 +28,10 @@ class Setup:
     rotation: np.ndarray
     translation: np.ndarray
 
+    def to_part(self, point: np.ndarray) -> np.ndarray:
+        """The part-frame point (float64 (3,), mm) of a machine-frame one."""
+        return self.rotation.T @ (np.asarray(point, dtype=np.float64) - self.translation)
+
 
 @dataclass
 class Assignment:

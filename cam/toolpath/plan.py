@@ -506,8 +506,7 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
         patches = machine_patches(ids, surfaces, signs, setup)
         solid = machine_patches(ids, whole, signs, setup)  # trimmed-off strips are still part of the part
         index = build_index(solid, spacing_mm=max(r / 6, 0.2))
-        # Messages name points in the part's frame, as finishable_region's do, not in this setup's.
-        to_part = lambda x, s=setup: s.rotation.T @ (np.asarray(x, dtype=np.float64) - s.translation)  # noqa: E731
+        to_part = setup.to_part  # messages name points in the part's frame, as finishable_region's do
         plans = []
         for p in patches:
             if p.id not in mine:
