@@ -71,10 +71,15 @@ def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -
     kmin, _ = principal_curvatures(fr)
     bad = ~fits_concave(kmin, tool_radius_mm)
     if np.any(bad):
-        i = np.unravel_index(np.argmin(kmin), kmin.shape)
-        radius = -1.0 / kmin[i]
-        raise TooConcave(concave_message(radius, tool_radius_mm, fr.p[i]), radius_mm=float(radius), point=fr.p[i],
-                         uv=np.stack([uu[bad], vv[bad]], -1))
+        raise _too_concave(fr, kmin, bad, uu, vv, tool_radius_mm)
+
+
+def _too_concave(fr, kmin: np.ndarray, bad: np.ndarray, u: np.ndarray, v: np.ndarray, r: float) -> TooConcave:
+    """`TooConcave` for the samples flagged `bad` (bool, the shape of u, v and kmin), named by the tightest."""
+    i = np.unravel_index(np.argmin(np.where(bad, kmin, np.inf)), kmin.shape)
+    radius = -1.0 / kmin[i]
+    return TooConcave(concave_message(radius, r, fr.p[i]), radius_mm=float(radius), point=fr.p[i],
+                      uv=np.stack([u[bad], v[bad]], -1))
 
 
 # The smallest ball end mills sold are 0.1 mm across: a hollow tighter than that is no feature a ball can
@@ -131,16 +136,12 @@ def _hollow_on_line(patch: Patch, along: str, fixed: float, q: np.ndarray, r: fl
     `check_concavity` looks at a grid; a hollow narrower than its spacing shows first on a ring's line,
     where the scallop relations have no answer. Points whose curvature is undefined are not hollows.
     """
-    fr = iso_line_frame(patch, along, fixed, q)
+    line = np.full_like(q, fixed)
+    u, v = (q, line) if along == "u" else (line, q)
+    fr = frame(patch, u, v)
     kmin, _ = principal_curvatures(fr)
     bad = np.isfinite(kmin) & ~fits_concave(kmin, r)
-    if not np.any(bad):
-        return None
-    i = int(np.argmin(np.where(bad, kmin, np.inf)))
-    radius = -1.0 / kmin[i]
-    line = np.full(int(bad.sum()), float(fixed))
-    uv = np.stack([q[bad], line] if along == "u" else [line, q[bad]], -1)
-    return TooConcave(concave_message(radius, r, fr.p[i]), radius_mm=float(radius), point=fr.p[i], uv=uv)
+    return _too_concave(fr, kmin, bad, u, v, r) if np.any(bad) else None
 
 
 def side_step(patch: Patch, *, along: str, fixed: float, lo: float, hi: float, direction: float, limit: float,
