@@ -71,7 +71,8 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     so the border stays the shared curves through every round); samples beyond a fixed border
     are ignored (they belong to the neighbour). Spans are halved where samples are beyond the
     tolerance, and where the surface is (with a `mesh` in the options), except within `border_band`
-    parameter units of a fixed border. A round that lowers the error beyond the tolerance
+    parameter units of a fixed border (at most a quarter of the domain's narrower side, so a patch
+    one quad wide still refines in its middle). A round that lowers the error beyond the tolerance
     (`SurfaceFit.excess`) by less than the fraction `min_gain` ends the refinement. Returns the
     best fit, the rounds used and the unrefined fit (`Refined`).
     """
@@ -114,7 +115,12 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
 
 
 def _inside(fit: SurfaceFit, band: float) -> np.ndarray:
-    """bool (m,): which of the fit's surface points lie farther than `band` from every side of its domain."""
+    """bool (m,): which of the fit's surface points lie farther than the band from every side of its domain.
+
+    The band is `band` parameter units, or a quarter of the domain's narrower side where that is less:
+    half a unit from both sides covers a patch one quad wide entirely, and its middle never refined.
+    """
     (u0, u1), (v0, v1) = (fit.knots_u[0], fit.knots_u[-1]), (fit.knots_v[0], fit.knots_v[-1])
+    band = min(band, 0.25 * min(u1 - u0, v1 - v0))
     u, v = fit.surface_u, fit.surface_v
     return (u - u0 > band) & (u1 - u > band) & (v - v0 > band) & (v1 - v > band)
