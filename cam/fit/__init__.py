@@ -5,7 +5,8 @@ errors). Modules, one concept each: `basis` (basis functions, design and bending
 `knots` (exact knot insertion, splitting, joining), `grid` (a patch's quads as a vertex
 grid), `param` (samples, seed parameters, foot points, anchors), `solve` (the squared-distance iteration), `boundary` (shared segments and
 the curves carrying them), `curve` (fitting one boundary curve), `crease` (moving sharp
-borders onto the mesh's creases), `refine` (knot insertion where the error stays high),
+borders onto the mesh's creases), `measure` (a surface's worst distances from the mesh, searched for),
+`refine` (knot insertion where the error stays high),
 `patches` (the whole fit). Distances to the mesh come from `cam.closest`.
 """
 

@@ -26,11 +26,21 @@ def _border_gap(result, grids, a, side_a, b, side_b, t_a, t_b):
     return float(np.linalg.norm(pts[0] - pts[1], axis=1).max())
 
 
+def _facets(shape, extent, MV, MF, n: int = 801) -> float:
+    """Largest distance (mm) from the shape itself, on an n x n grid, to its triangle mesh: what a
+    surface that reproduces the shape exactly is measured at (the mesh's faces are chords of it)."""
+    s, t = np.meshgrid(np.linspace(0, extent[0], n), np.linspace(0, extent[1], n), indexing="ij")
+    return float(closest_points(mesh_index(MV, MF), shape(s, t).reshape(-1, 3))[1].max())
+
+
 def test_a_bicubic_polynomial_is_reproduced():
     V, ids, MV, MF = case(poly, (20, 10), (10, 5))
     result = fit_patches(V, [ids], MV, MF, **EXACT)
     (p,) = result.patches
-    assert p.max_error_mm < 1e-6
+    # The samples (mesh vertices, on the polynomial) are met; what is left is the mesh's own faceting.
+    facets = _facets(poly, (20, 10), MV, MF)
+    assert p.mean_error_mm < 1e-6 and p.max_error_mm == p.surface_to_mesh_mm
+    assert facets - 1e-6 <= p.surface_to_mesh_mm <= facets + 2e-4
     u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
     S = p.surface.evaluate(u, v)
     assert np.abs(poly(S[..., 0], S[..., 1])[..., 2] - S[..., 2]).max() < 1e-6
@@ -75,7 +85,13 @@ def test_a_t_junction_is_c0_on_both_pieces():
     assert _border_gap(result, grids, 0, "v1", 2, "v0", tb, tb - 4) <= 1e-9
     tc = np.linspace(0, 2, 101)
     assert _border_gap(result, grids, 1, "u1", 2, "u0", tc, tc) <= 1e-9
-    assert max(p.max_error_mm for p in result.patches) < 1e-5
+    # Every piece reproduces the polynomial: it is as far from the mesh as the polynomial's facets.
+    facets = _facets(poly, (20, 10), MV, MF)
+    assert all(p.mean_error_mm < 1e-6 and p.max_error_mm <= facets + 2e-4 for p in result.patches)
+    u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
+    for p in result.patches:
+        S = p.surface.evaluate(u, v)
+        assert np.abs(poly(S[..., 0], S[..., 1])[..., 2] - S[..., 2]).max() < 1e-5
 
 
 def _bent(s, t):
@@ -218,6 +234,29 @@ def test_the_free_fits_refinement_stays_out_of_the_final_surface():
     (q,) = fit_patches(V, [ids], MV, MF, max_refinements=0).patches
     assert p.within_tolerance and p.refinements == 0
     assert p.surface.control_points.shape[1] == q.surface.control_points.shape[1] == 6
+
+
+def test_the_surface_to_mesh_distance_finds_a_peak_between_samples():
+    # A flat surface (x = u mm, y = v mm, spans of two quads of 1 mm) over a flat mesh with a V-shaped
+    # trench 0.2 mm wide at x = 0.31 mm, between the samples a grid of 4 per knot span would take
+    # (0, 0.5, 1, ...). Above the trench's middle the surface is 0.0995 mm from the trench's walls.
+    from cam.fit.measure import surface_peaks
+
+    def trench(s, t):
+        return np.stack([s, t, -10.0 * np.maximum(0.1 - np.abs(s - 0.31), 0.0)], axis=-1)
+
+    s = np.unique(np.concatenate([np.linspace(0, 4, 41), [0.21, 0.31, 0.41]]))
+    MV, MF = triangle_mesh(trench, s, np.linspace(0, 2, 21))
+    index = mesh_index(MV, MF)
+    ku, kv = np.array([0.0] * 4 + [2.0] + [4.0] * 4), np.array([0.0] * 4 + [2.0] * 4)
+    gu, gv = np.array([0, 2 / 3, 2, 10 / 3, 4]), np.array([0, 2 / 3, 4 / 3, 2])
+    cp = np.stack([*np.meshgrid(gu, gv, indexing="ij"), np.zeros((5, 4))], axis=-1)
+    measured = surface_peaks(index, ku, kv, cp)[2].max()
+    # Oracle: the distance along a dense line of x across the trench (the part does not vary along y).
+    x = np.linspace(0, 4, 4001)  # through x = 0.31 exactly
+    oracle = closest_points(index, np.stack([x, np.full_like(x, 1.0), np.zeros_like(x)], axis=1))[1].max()
+    assert oracle == pytest.approx(0.1 / np.hypot(1.0, 0.1), abs=1e-6)
+    assert measured == pytest.approx(oracle, abs=1e-4)
 
 
 def test_inputs_are_checked():
