@@ -73,11 +73,11 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     are ignored (they belong to the neighbour). Spans are halved where samples are beyond the
     tolerance, and where the surface is (with a `mesh` in the options: on the fit's lattice and, inside
     fixed borders, at the peaks `cam.fit.measure.surface_peaks` finds between its points, which then
-    count in comparing rounds too), except within `border_band`
-    parameter units of a fixed border (at most a quarter of the domain's narrower side, so a patch
-    one quad wide still refines in its middle) unless farther from the mesh than the border is. A round that lowers the error beyond the tolerance
-    (`SurfaceFit.excess`) by less than the fraction `min_gain` ends the refinement. Returns the
-    best fit, the rounds used and the unrefined fit (`Refined`).
+    count in comparing rounds too), except within `border_band` parameter units of a fixed border
+    (at most a quarter of the domain's narrower side, so a patch one quad wide still refines in its
+    middle) unless farther from the mesh than the border is. A round that lowers the error beyond
+    the tolerance (`SurfaceFit.excess`) by less than the fraction `min_gain` ends the refinement.
+    Returns the best fit, the rounds used and the unrefined fit (`Refined`).
     """
     mode = "drop" if fix_border else "pull"
     cp = None if control_points is None else np.asarray(control_points, dtype=np.float64)
