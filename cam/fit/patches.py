@@ -192,6 +192,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                                     knot_spacing, tolerance_mm, max_refinements, min_span, kink_angle_deg)
     final: list[SurfaceFit] = []
     rounds: list[int] = []
+    peaks: list[np.ndarray] = []
     for k in range(n):
         ku, kv, cp = _constrained_start(k, layout, coarse[k], curves)
         pts, nrm, u, v = data(k)
@@ -203,6 +204,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                            max_refinements=max_refinements, min_span=min_span, mesh_spacing=0.125, **opts)
         final.append(done.fit)
         rounds.append(done.rounds)
+        peaks.append(done.peaks[2])
         report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = _sample_errors(P_all, asg_all.patch, final, layout, tolerance_mm)
@@ -212,7 +214,9 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         fit = final[k]
         surf = make_bspline_surface(fit.control_points, fit.knots_u / R, fit.knots_v / C)
         e = errors[asg_all.patch == k]
-        s2m = float(surface_peaks(index, fit.knots_u, fit.knots_v, fit.control_points)[2].max(initial=0.0))
+        # The refinement searched the final surface already, unless it was not given the mesh (mesh_weight 0).
+        found = peaks[k] if peaks[k].size else surface_peaks(index, fit.knots_u, fit.knots_v, fit.control_points)[2]
+        s2m = float(found.max(initial=0.0))
         berr = max((curve_err[p.curve] for name in SIDES for p in layout.sides[(k, name)]), default=0.0)
         worst = max(float(e.max(initial=0.0)), s2m)
         out.append(PatchFit(index=k, surface=surf, max_error_mm=worst, mean_error_mm=float(e.mean()) if e.size else 0.0,

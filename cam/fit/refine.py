@@ -22,12 +22,14 @@ __all__ = ["Refined", "split_spans", "refine_targets", "border_mask", "fit_refin
 
 @dataclass(frozen=True, eq=False)
 class Refined:
-    """What `fit_refined` returns: the best fit, the rounds tried, and the fit on the knots given
-    (before any round; `fit` itself when no round was kept)."""
+    """What `fit_refined` returns: the best fit, the rounds tried, the fit on the knots given
+    (before any round; `fit` itself when no round was kept), and the best fit's
+    `cam.fit.measure.surface_peaks` (u, v, distance; empty where they were not searched for)."""
 
     fit: SurfaceFit
     rounds: int
     unrefined: SurfaceFit
+    peaks: tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def split_spans(knots: np.ndarray, params: np.ndarray, *, degree: int = 3, min_span: float = 0.125) -> np.ndarray:
@@ -73,7 +75,7 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     are ignored (they belong to the neighbour). Spans are halved where samples are beyond the
     tolerance, and where the surface is (with a `mesh` in the options: on the fit's lattice and, inside
     fixed borders, at the peaks `cam.fit.measure.surface_peaks` finds between its points, which then
-    count in comparing rounds too), except within `border_band` parameter units of a fixed border
+    count in comparing rounds too, and are returned), except within `border_band` parameter units of a fixed border
     (at most a quarter of the domain's narrower side, so a patch one quad wide still refines in its
     middle) unless farther from the mesh than the border is. A round that lowers the error beyond
     the tolerance (`SurfaceFit.excess`) by less than the fraction `min_gain` ends the refinement.
@@ -95,14 +97,14 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         # Spans where the surface leaves the mesh: on the fit's lattice, and where the search between
         # its points finds it (a fit within tolerance on the lattice can still be beyond it there).
         su, sv = np.concatenate([fit.surface_u, peaks[0]]), np.concatenate([fit.surface_v, peaks[1]])
-        off = np.concatenate([fit.surface_distance, peaks[2]]) > tolerance_mm
+        d = np.concatenate([fit.surface_distance, peaks[2]])
+        off = d > tolerance_mm
         if fix_border:
             # Along a fixed border the surface leaves the mesh as far as its boundary curve does,
             # whatever the knots inside: halving those spans (whole knot lines, across the patch)
             # would only narrow the band, round after round, at the cost of every row and column.
             # Farther than the border itself is anywhere, though, the error is the surface's own
             # (a ripple beside a flat border, left by the spans split for a bump inside).
-            d = np.concatenate([fit.surface_distance, peaks[2]])
             off &= _inside(fit, su, sv, border_band) | (d > _border_distance(fit))
         tu, tv = refine_targets(fit.knots_u, fit.knots_v, np.concatenate([fit.u, su]), np.concatenate([fit.v, sv]),
                                 np.concatenate([bad, off]), min_span=min_span)
@@ -126,7 +128,7 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             fit, peaks = refit, refit_peaks
         if not enough:
             break
-    return Refined(fit, rounds, first)
+    return Refined(fit, rounds, first, peaks)
 
 
 def _peaks(mesh, fit: SurfaceFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
