@@ -31,18 +31,26 @@ class CurveFit:
 
 
 def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constraints: list[tuple[float, np.ndarray]],
-              length_mm: float, tolerance_mm: float, deviation: Callable[[np.ndarray], np.ndarray] | None = None,
+              length_mm: float, tolerance_mm: float,
+              closest: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
               project: Callable[[np.ndarray], np.ndarray] | None = None, smoothing_mm2: float = 1e-8,
-              max_refinements: int = 3, min_span: float = 0.125, degree: int = 3) -> CurveFit:
+              surface_weight: float = 100.0, slide: list[tuple[float, float]] | None = None, max_refinements: int = 3, min_span: float = 0.125,
+              degree: int = 3) -> CurveFit:
     """Least-squares cubic through `points` (n, 3) at parameters `t` (n,), exact at `constraints`.
 
     constraints: (parameter, point (3,)) pairs the curve must pass through (its two ends at
-    least). length_mm scales the bending term to the part. deviation: maps curve points (k, 3)
-    to their distance (k,) from what the curve must stay on (the mesh); without it the
-    distance to the data at their parameters is used. Each refinement round, data points
-    farther than `tolerance_mm` from it are replaced by `project` (parameters (k,) -> points
-    (k, 3) on it where the curve should pass at them), spans that stay farther are halved (knot
-    insertion, down to `min_span`), and the curve is refitted.
+    least). length_mm scales the bending term to the part. closest: maps curve points (k, 3)
+    to their closest points (k, 3) on what the curve must stay on (the mesh) and the unit
+    normals (k, 3) there; without it the distance to the data at their parameters is the
+    error. Each refinement round, data points farther than `tolerance_mm` from it are replaced
+    by `project` (parameters (k,) -> points (k, 3) on it where the curve should pass at them),
+    spans that stay farther are halved (knot insertion, down to `min_span`), and the curve is
+    refitted with the squared distance to the surface added (its tangent-plane approximation,
+    `surface_weight` times the data term, feet found again three times): data that agree with
+    each other place the curve, data that disagree (two patches' borders, each on the mesh,
+    apart across it) are averaged along the surface, not through the air. slide: the parameter
+    ranges (lo, hi) where that term applies (None: everywhere); elsewhere the data alone place
+    the curve (a crease: on the mesh is not enough there, the curve must follow it).
     """
     P = np.asarray(points, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
@@ -59,14 +67,23 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
                 break
             stiffer *= 100.0
             cp = _solve(P, t, k, constraints, length_mm, stiffer, degree)
+        if rounds and closest is not None and surface_weight > 0:
+            near = span_params(k, 8)
+            if slide is not None:
+                near = near[np.any([(near >= lo) & (near <= hi) for lo, hi in slide], axis=0)] if slide else near[:0]
+            for _ in range(3 if near.size else 0):
+                feet, normals = closest(evaluate_curve(k, cp, near, degree=degree)[0])
+                cp = _solve(P, t, k, constraints, length_mm, stiffer, degree,
+                            surface=(near, feet, normals, surface_weight))
         if previous is not None and turns_back(k, cp, degree=degree) and not turns_back(*previous[:2], degree=degree):
             # Finer spans let the curve loop between its data: a border that turns back folds
             # both patches on it. Keep the last curve that ran one way.
             k, cp, worst = previous
             break
-        if deviation is not None:
+        if closest is not None:
             where = span_params(k, 8)
-            err = np.asarray(deviation(evaluate_curve(k, cp, where, degree=degree)[0]), dtype=np.float64)
+            on = evaluate_curve(k, cp, where, degree=degree)[0]
+            err = np.linalg.norm(on - closest(on)[0], axis=1)
         else:
             where = t
             err = np.linalg.norm(evaluate_curve(k, cp, t, degree=degree)[0] - P, axis=1) if len(P) else np.zeros(0)
@@ -74,11 +91,11 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
         if worst <= tolerance_mm or rounds >= max_refinements:
             break
         moved = False
-        if deviation is not None and project is not None and len(P):
+        if closest is not None and project is not None and len(P):
             # Data off the mesh (a patch fit's border past where it had samples) is no data for the
             # curve. Its replacement keeps the parameter: the closest point on the mesh instead
             # would shift it along the curve, and data out of order make the curve zig-zag.
-            off = np.asarray(deviation(P)) > tolerance_mm
+            off = np.linalg.norm(P - closest(P)[0], axis=1) > tolerance_mm
             if off.any():
                 P = P.copy()
                 P[off] = project(t[off])
@@ -101,7 +118,12 @@ def turns_back(knots: np.ndarray, control_points: np.ndarray, *, degree: int = 3
     return bool(np.any(np.einsum("ij,ij->i", d[1:], d[:-1]) < 0))
 
 
-def _solve(P, t, knots, constraints, length_mm, smoothing_mm2, degree) -> np.ndarray:
+def _solve(P, t, knots, constraints, length_mm, smoothing_mm2, degree, surface=None) -> np.ndarray:
+    """Control points (n, 3): least squares to the data with bending, exact at the constraints (KKT).
+
+    surface: (params (m,), feet (m, 3), normals (m, 3), weight) adds weight times the mean squared
+    distance of C(params) from the planes through the feet; the planes couple the coordinates.
+    """
     n = knots.size - degree - 1
     span = knots[-1] - knots[0]
     # Bending ∫|C''|² ds in mm: the parameter runs over `span` units for `length_mm` mm.
@@ -116,6 +138,21 @@ def _solve(P, t, knots, constraints, length_mm, smoothing_mm2, degree) -> np.nda
         rhs = np.zeros((n, 3))
     C = curve_matrix(knots, degree, np.array([c[0] for c in constraints], dtype=np.float64)).toarray()
     values = np.array([c[1] for c in constraints], dtype=np.float64).reshape(-1, 3)
+    if surface is None:
+        return _kkt(M, rhs, C, values, n)
+    # One system for the three coordinates (coordinate-major unknowns): a plane's row mixes them.
+    near, feet, normals, weight = surface
+    S = curve_matrix(knots, degree, near).toarray()
+    J = np.concatenate([normals[:, c:c + 1] * S for c in range(3)], axis=1)
+    eye = np.eye(3)
+    M3 = np.kron(eye, M) + weight / len(near) * J.T @ J
+    rhs3 = rhs.T.ravel() + weight / len(near) * J.T @ np.einsum("ij,ij->i", normals, feet)
+    sol = _kkt(M3, rhs3[:, None], np.kron(eye, C), values.T.reshape(-1, 1), 3 * n)
+    return sol.reshape(3, n).T
+
+
+def _kkt(M: np.ndarray, rhs: np.ndarray, C: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Minimiser of x'Mx/2 - rhs'x subject to Cx = values: (n, columns of rhs)."""
     m = len(C)
     kkt = np.zeros((n + m, n + m))
     kkt[:n, :n] = M

@@ -314,13 +314,29 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
                 # Where the border's vertices say the curve runs: their polyline, onto the mesh.
                 return closest_points(index, _polyline_at(seg, np.interp(t, tau, np.arange(len(seg)))))[0]
 
+            # The curve is held on the mesh along its smooth stretches only: along a crease its data are
+            # the crease, and the mesh beside it would let the curve slide off it onto one face.
+            slide = [(float(tau[i]), float(tau[i + 1])) for i in np.flatnonzero(~on)]
             parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, spacing), constraints=cons, length_mm=length,
                                    tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
-                                   deviation=lambda p: closest_points(index, p)[1], project=on_mesh))
+                                   closest=lambda p: _feet_and_normals(index, p), project=on_mesh,
+                                   slide=slide))
         knots, cp = join_curves([(f.knots, f.control_points) for f in parts])
         fits.append(CurveFit(knots=knots, control_points=cp, max_error=max(f.max_error for f in parts)))
         errs.append(fits[-1].max_error)
     return fits, errs
+
+
+def _feet_and_normals(index, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest mesh points to `points` (k, 3) and the unit normals of the distance there (k, 3): towards
+    the point where it is off the mesh (exact at edges and creases too), else the triangle's normal."""
+    feet, dist, tri, _ = closest_points(index, points)
+    corners = index.vertices[index.faces[tri]]
+    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    face /= np.maximum(np.linalg.norm(face, axis=1), 1e-300)[:, None]
+    off = dist > 1e-9
+    normals = np.where(off[:, None], (points - feet) / np.where(off, dist, 1.0)[:, None], face)
+    return feet, normals
 
 
 def _curve_data(on: np.ndarray, pts: np.ndarray, params: np.ndarray, q_free: np.ndarray, h_free: np.ndarray,

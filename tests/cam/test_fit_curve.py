@@ -48,16 +48,49 @@ def test_data_off_the_surface_are_replaced_at_their_own_parameter():
     off = (t > 6) & (t < 8)
     P[off] += [0.8, 1.0, 0.0]
 
-    def deviation(q):
-        return np.hypot(q[:, 1], q[:, 2])
+    def closest(q):
+        feet = q * [1.0, 0.0, 0.0]
+        off = q - feet
+        return feet, off / np.maximum(np.linalg.norm(off, axis=1), 1e-300)[:, None]
 
     def on_axis(s):
         return np.stack([s, np.zeros_like(s), np.zeros_like(s)], 1)
 
     fit = fit_curve(P, t, knots=lattice_knots(0, 10, 2.0), constraints=ENDS, length_mm=10.0, tolerance_mm=1e-6,
-                    deviation=deviation, project=on_axis)
+                    closest=closest, project=on_axis)
     from cam.fit.basis import evaluate_curve
 
     s = np.linspace(0, 10, 201)
     np.testing.assert_allclose(evaluate_curve(fit.knots, fit.control_points, s)[0], on_axis(s), atol=1e-6)
     assert fit.max_error < 1e-6
+
+
+def test_two_borders_apart_on_a_cylinder_are_averaged_on_it():
+    # Two patches' own borders, both on a cylinder of radius 5 about the x axis, 0.1 rad apart
+    # either side of the seam: their mean lies 0.025 mm inside. Refining the knots cannot fix that
+    # (the data are on the surface); holding the curve on the surface can, and by symmetry it
+    # runs along the seam.
+    radius, tol = 5.0, 0.005
+    t = np.linspace(0, 10, 41)
+    P = np.concatenate([np.stack([t, radius * np.cos(a) * np.ones_like(t), radius * np.sin(a) * np.ones_like(t)], 1)
+                        for a in (0.1, -0.1)])
+    h = np.concatenate([t, t])
+    ends = [(0.0, np.array([0.0, radius, 0.0])), (10.0, np.array([10.0, radius, 0.0]))]
+
+    def closest(q):
+        r = np.hypot(q[:, 1], q[:, 2])[:, None]
+        feet = np.concatenate([q[:, :1], radius * q[:, 1:] / r], 1)
+        normal = np.concatenate([np.zeros((len(q), 1)), q[:, 1:] / r], 1)
+        return feet, normal
+
+    from cam.fit.basis import evaluate_curve
+
+    kw = dict(knots=lattice_knots(0, 10, 2.0), constraints=ends, length_mm=10.0, tolerance_mm=tol, closest=closest)
+    assert fit_curve(P, h, surface_weight=0.0, **kw).max_error > 0.02
+    fit = fit_curve(P, h, **kw)
+    s = np.linspace(0, 10, 401)
+    C = evaluate_curve(fit.knots, fit.control_points, s)[0]
+    assert fit.max_error <= tol
+    assert np.abs(np.hypot(C[:, 1], C[:, 2]) - radius).max() <= tol
+    np.testing.assert_allclose(C[:, 2], 0.0, atol=1e-9)
+    np.testing.assert_allclose(C[:, 0], s, atol=1e-6)
