@@ -201,7 +201,8 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         # tolerance (a bump's fit, 0.03204 mm), and the free fits only place the borders.
         done = fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
                            tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                           max_refinements=max_refinements, min_span=min_span, mesh_spacing=0.125, **opts)
+                           max_refinements=max_refinements, min_span=min_span, mesh_spacing=0.125,
+                           mesh_edges=True, **opts)
         final.append(done.fit)
         rounds.append(done.rounds)
         peaks.append(done.peaks[2])

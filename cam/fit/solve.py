@@ -104,6 +104,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 pull_weight: float = 0.3, pull_sides: tuple[bool, bool, bool, bool] = (True, True, True, True),
                 clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
                 mesh: MeshIndex | None = None, mesh_weight: float = 1.0, mesh_spacing: float = 0.25,
+                mesh_edges: bool = False,
                 degree: tuple[int, int] = (3, 3)) -> SurfaceFit:
     """Fit a B-spline surface with the given knots to samples, keeping `fixed` control points.
 
@@ -130,6 +131,9 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     with different knots compare on them) against the mesh, and draws those points
     onto the mesh (their closest points, along the mesh normal there, `mesh_weight` in all against
     the samples' 1): samples alone leave a span with few of them free to bulge between them.
+    mesh_edges: draw the points whose closest mesh point is off to the side (on an edge: past a
+    crease, or past the mesh's own border) towards it as well, along the distance's own direction
+    (for a surface inside fixed borders, where the surface has no business past the mesh).
     Stops when the largest distance is within tolerance and no longer improving, when it stops
     improving, or after `iterations` steps; returns the best step seen: the least folded, and of
     those the closest (`SurfaceFit.improves_on`). A step that folds the net more is taken again
@@ -179,7 +183,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         off = r - along[:, None] * frame.normal
         clamped = np.linalg.norm(off, axis=1) > 1e-6 + 1e-3 * np.abs(along)
         counted = ~clamped if clamped_samples == "drop" else np.ones(len(P), dtype=bool)
-        grid = _surface_grid(ku, kv, cp, mesh, mesh_spacing, degree) if mesh is not None else None
+        grid = _surface_grid(ku, kv, cp, mesh, mesh_spacing, degree, mesh_edges) if mesh is not None else None
         extra = {} if grid is None else dict(surface_u=grid[0], surface_v=grid[1], surface_distance=grid[2])
         fit = SurfaceFit(ku, kv, cp, u, v, dist, clamped, counted, it,
                          find_folds(make_bspline_surface(cp, ku, kv, degree=degree))[0], **extra)
@@ -236,12 +240,13 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     return best
 
 
-def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree):
+def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bool = False):
     """Points of the surface on a grid of parameters `spacing` apart (and the far ends), and the mesh near them.
 
     Returns u, v (m,), distance (m,) mm to the mesh, the closest mesh points (m, 3), the normals of
     their triangles (m, 3), and ok bool (m,): the mesh lies along its triangle's normal from the
-    point (within 27°) and the triangle faces the way the surface does (within 60°).
+    point (within 27°) and the triangle faces the way the surface does (within 60°). With `edges`,
+    the other points off the mesh are ok too, their normal the direction from the closest point.
     """
     # The lattice's distinct values: the multiples of `spacing` inside the domain, and its ends.
     uu, vv = np.meshgrid(*(np.unique(lattice_knots(k[0], k[-1], spacing)) for k in (ku, kv)), indexing="ij")
@@ -258,6 +263,10 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree):
     along = _dot(r, fn)
     square = np.linalg.norm(r - along[:, None] * fn, axis=1) <= 1e-6 + 0.5 * np.abs(along)
     ok = square & (np.abs(_dot(fn, frame.normal)) > 0.5)
+    if edges:
+        side = ~ok & (dist > 1e-9)
+        fn[side] = r[side] / dist[side, None]
+        ok |= side
     return u, v, dist, near, fn, ok
 
 
