@@ -321,3 +321,26 @@ def test_a_crease_curve_through_a_vertex_next_to_its_neighbour_stays_on_the_crea
     result = fit_patches(V, [ids[:8], ids[7:]], MV, MF, sharp_edges=sharp)
     assert all(p.boundary_error_mm <= result.tolerance_mm for p in result.patches)
     assert result.max_gap_mm <= 1e-9
+
+
+def test_inside_fixed_borders_a_surface_past_a_crease_is_drawn_back_onto_it():
+    # A flat surface 0.1 mm above the ridge of a roof (crease along s = 10, faces sloping 0.8):
+    # where its closest mesh point is on the ridge itself, the mesh does not lie along a triangle's
+    # normal from it, and the lattice left those points out. With mesh_edges they count, drawn
+    # along the direction from the ridge, and so do the same distances.
+    from cam.fit.knots import lattice_knots
+    from cam.fit.solve import _surface_grid
+
+    MV, MF = triangle_mesh(ridge(10.0, 0.8), np.linspace(0, 20, 81), np.linspace(0, 10, 41))
+    mesh = mesh_index(MV, MF)
+    ku, kv = lattice_knots(8, 12, 4.0), lattice_knots(4, 8, 4.0)
+    s, t = np.meshgrid(np.linspace(8, 12, 4), np.linspace(4, 8, 4), indexing="ij")
+    cp = np.stack([s, t, np.full_like(s, 8.1)], axis=-1)  # bilinear control net: the plane z = 8.1
+    u, v, dist, near, normal, ok = _surface_grid(ku, kv, cp, mesh, 0.25, (3, 3))
+    on_ridge = np.abs(near[:, 0] - 10.0) < 1e-9
+    assert on_ridge.any() and not ok[on_ridge].any()
+    u2, v2, dist2, near2, normal2, ok2 = _surface_grid(ku, kv, cp, mesh, 0.25, (3, 3), edges=True)
+    np.testing.assert_array_equal(dist2, dist)
+    assert ok2.all()
+    np.testing.assert_allclose(normal2[on_ridge], [[0.0, 0.0, 1.0]] * int(on_ridge.sum()), atol=1e-12)
+    np.testing.assert_array_equal(normal2[~on_ridge], normal[~on_ridge])
