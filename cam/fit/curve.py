@@ -34,7 +34,8 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
               length_mm: float, tolerance_mm: float,
               closest: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
               project: Callable[[np.ndarray], np.ndarray] | None = None, smoothing_mm2: float = 1e-8,
-              surface_weight: float = 100.0, slide: list[tuple[float, float]] | None = None, max_refinements: int = 3, min_span: float = 0.125,
+              surface_weight: float = 100.0, slide: list[tuple[float, float]] | None = None,
+              exact: np.ndarray | None = None, max_refinements: int = 3, min_span: float = 0.125,
               degree: int = 3) -> CurveFit:
     """Least-squares cubic through `points` (n, 3) at parameters `t` (n,), exact at `constraints`.
 
@@ -50,7 +51,9 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
     each other place the curve, data that disagree (two patches' borders, each on the mesh,
     apart across it) are averaged along the surface, not through the air. slide: the parameter
     ranges (lo, hi) where that term applies (None: everywhere); elsewhere the data alone place
-    the curve (a crease: on the mesh is not enough there, the curve must follow it).
+    the curve (a crease: on the mesh is not enough there, the curve must follow it). exact: bool
+    (n,), the data the curve must pass through (a crease), so its distance from them counts in
+    its error as well.
     """
     P = np.asarray(points, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
@@ -70,7 +73,7 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
         if rounds and closest is not None and surface_weight > 0:
             near = span_params(k, 8)
             if slide is not None:
-                near = near[np.any([(near >= lo) & (near <= hi) for lo, hi in slide], axis=0)] if slide else near[:0]
+                near = near[_within(near, slide)]
             for _ in range(3 if near.size else 0):
                 feet, normals = closest(evaluate_curve(k, cp, near, degree=degree)[0])
                 cp = _solve(P, t, k, constraints, length_mm, stiffer, degree,
@@ -84,6 +87,13 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
             where = span_params(k, 8)
             on = evaluate_curve(k, cp, where, degree=degree)[0]
             err = np.linalg.norm(on - closest(on)[0], axis=1)
+            if exact is not None and len(P):
+                # On the mesh is not enough where the data are the crease itself: a curve on one face
+                # beside it leaves the crease to neither patch.
+                mine = np.asarray(exact, dtype=bool)
+                where = np.concatenate([where, t[mine]])
+                err = np.concatenate([err, np.linalg.norm(evaluate_curve(k, cp, t[mine], degree=degree)[0] - P[mine],
+                                                          axis=1)])
         else:
             where = t
             err = np.linalg.norm(evaluate_curve(k, cp, t, degree=degree)[0] - P, axis=1) if len(P) else np.zeros(0)
@@ -110,6 +120,14 @@ def fit_curve(points: np.ndarray, t: np.ndarray, *, knots: np.ndarray, constrain
         previous = (k, cp, worst)
         k, rounds = new, rounds + 1
     return CurveFit(knots=k, control_points=cp, max_error=worst)
+
+
+def _within(t: np.ndarray, ranges: list[tuple[float, float]]) -> np.ndarray:
+    """bool (n,): which parameters t (n,) lie in one of the closed ranges (lo, hi)."""
+    out = np.zeros(t.shape, dtype=bool)
+    for lo, hi in ranges:
+        out |= (t >= lo) & (t <= hi)
+    return out
 
 
 def turns_back(knots: np.ndarray, control_points: np.ndarray, *, degree: int = 3, per_span: int = 16) -> bool:

@@ -42,7 +42,7 @@ class PatchFit:
     max_error_mm / mean_error_mm: distance from the patch's mesh samples to the fitted surfaces
     (a sample beyond the border counts against the nearest neighbour), max_error_mm also
     covers surface_to_mesh_mm: the largest distance from points of the surface to the mesh;
-    boundary_error_mm: the largest distance of its boundary curves from the mesh;
+    boundary_error_mm: the largest distance of its boundary curves from the mesh (along a crease, from the crease);
     folded_fraction: share of the surface that folds over itself (`cam.bspline.find_folds` on the grid the
     planner checks, `FOLD_CHECK_SAMPLES`; 0 for a regular patch), reported because a fold can hug the mesh
     and still pass the distance test.
@@ -308,7 +308,7 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
             # parameterised smoothly already.
             on = _sharp_edges(verts[a:b + 1], sharp) if creases is not None else np.zeros(b - a, dtype=bool)
             tau = lo + _chord_params(seg, fixed, on)
-            q, h = _curve_data(on, seg, tau, q_free, h_free, creases, index)
+            q, h, exact = _curve_data(on, seg, tau, q_free, h_free, creases, index)
             length = float(np.linalg.norm(np.diff(seg, axis=0), axis=1).sum())
 
             def on_mesh(t: np.ndarray, seg=seg, tau=tau) -> np.ndarray:
@@ -321,7 +321,7 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
             parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, spacing), constraints=cons, length_mm=length,
                                    tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
                                    closest=lambda p: _feet_and_normals(index, p), project=on_mesh,
-                                   slide=slide))
+                                   slide=slide, exact=exact))
         knots, cp = join_curves([(f.knots, f.control_points) for f in parts])
         fits.append(CurveFit(knots=knots, control_points=cp, max_error=max(f.max_error for f in parts)))
         errs.append(fits[-1].max_error)
@@ -341,21 +341,37 @@ def _feet_and_normals(index, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def _curve_data(on: np.ndarray, pts: np.ndarray, params: np.ndarray, q_free: np.ndarray, h_free: np.ndarray,
-                creases, index) -> tuple[np.ndarray, np.ndarray]:
+                creases, index) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Data for the curve through vertices at `pts` (m, 3) with curve parameters `params` (m,):
     along each run of sharp edges (`on`, bool (m - 1,)) the crease, along the rest the patches' own
-    borders (q_free at parameters h_free)."""
+    borders (q_free at parameters h_free). Returns the points (n, 3), their parameters (n,) and
+    which of them the curve must pass through (bool (n,)): the crease's, except next to a jump."""
     cuts = [0, *(np.flatnonzero(on[1:] != on[:-1]) + 1).tolist(), len(on)]
-    qs, hs = [], []
+    qs, hs, exact = [], [], []
     for a, b in zip(cuts[:-1], cuts[1:]):
         if on[a]:
             q, h = _crease_samples(pts[a:b + 1], params[a:b + 1], creases, index)
+            exact.append(~_near_jumps(q))
         else:
             inside = (h_free >= params[a]) & (h_free <= params[b])
             q, h = q_free[inside], h_free[inside]
+            exact.append(np.zeros(len(q), dtype=bool))
         qs.append(q)
         hs.append(h)
-    return np.concatenate(qs), np.concatenate(hs)
+    return np.concatenate(qs), np.concatenate(hs), np.concatenate(exact)
+
+
+def _near_jumps(q: np.ndarray, factor: float = 2.0, reach: int = 2) -> np.ndarray:
+    """bool (n,): crease data (n, 3), in order, within `reach` steps of a jump (a step over `factor` times
+    the median step). There the data leave one crease for another (the two creases of a bevelled
+    edge, a crease corner the junction is not on): no curve passes through both sides of that."""
+    step = np.linalg.norm(np.diff(q, axis=0), axis=1)
+    out = np.zeros(len(q), dtype=bool)
+    if step.size < 2:
+        return out
+    for i in np.flatnonzero(step > factor * np.median(step)).tolist():
+        out[max(0, i - reach + 1):i + reach + 1] = True
+    return out
 
 
 def _chord_params(pts: np.ndarray, fixed: list[int], along: np.ndarray) -> np.ndarray:

@@ -86,3 +86,15 @@ def test_a_vertex_where_a_crease_bends_keeps_off_the_corner_where_it_ends():
     assert len(cr.corners) == 2  # the ridge's two ends on the border
     pos = vertex_positions(V, [ids[:8], ids[7:]], mesh_index(MV, MF), sharp=edge_keys(sharp), creases=cr)
     np.testing.assert_allclose(pos[ids[7]], V[ids[7]], atol=1e-12)
+
+
+def test_crease_data_next_to_a_jump_are_not_held_exact():
+    # Crease data 0.1 mm apart that leave one crease for a parallel one 0.3 mm away (a bevelled
+    # edge): the two samples either side of the jump, and one more each way, are not data a curve
+    # can pass through; the rest are.
+    from cam.fit.patches import _near_jumps
+
+    x = 0.1 * np.arange(12)
+    q = np.stack([x, np.where(np.arange(12) < 6, 0.0, 0.3), np.zeros(12)], 1)
+    np.testing.assert_array_equal(np.flatnonzero(_near_jumps(q)), [4, 5, 6, 7])
+    assert not _near_jumps(q[:6]).any()

@@ -94,3 +94,29 @@ def test_two_borders_apart_on_a_cylinder_are_averaged_on_it():
     assert np.abs(np.hypot(C[:, 1], C[:, 2]) - radius).max() <= tol
     np.testing.assert_allclose(C[:, 2], 0.0, atol=1e-9)
     np.testing.assert_allclose(C[:, 0], s, atol=1e-6)
+
+
+def test_a_curve_along_a_crease_follows_it_not_just_the_faces_beside_it():
+    # A crease that is a polygon in the plane z = 0 (a quarter circle of radius 10 in 6 chords, the
+    # way a mesh creases a round edge), and a mesh that is that plane: a curve cutting the polygon's
+    # corners is on the mesh everywhere, 0.068 mm off the crease. Given which data are the crease,
+    # the curve's distance from them counts, and refinement brings it within.
+    from cam.fit.basis import evaluate_curve
+
+    n, tol = 6, 0.05
+    a = np.linspace(0, np.pi / 2, n + 1)
+    corners = np.stack([10 * np.cos(a), 10 * np.sin(a), np.zeros_like(a)], 1)
+    t = np.arange(8 * n + 1) / 8
+    i = np.minimum(np.floor(t).astype(int), n - 1)
+    P = corners[i] + (t - i)[:, None] * (corners[i + 1] - corners[i])
+
+    def closest(q):
+        return q * [1.0, 1.0, 0.0], np.tile([0.0, 0.0, 1.0], (len(q), 1))
+
+    kw = dict(knots=lattice_knots(0, n, 2.0), constraints=[(0.0, corners[0]), (float(n), corners[-1])],
+              length_mm=15.7, tolerance_mm=tol, closest=closest)
+    for exact, within in ((None, False), (np.ones(len(P), dtype=bool), True)):
+        fit = fit_curve(P, t, exact=exact, **kw)
+        miss = np.linalg.norm(evaluate_curve(fit.knots, fit.control_points, t)[0] - P, axis=1).max()
+        assert bool(miss <= tol) == within
+        assert fit.max_error >= (miss if exact is not None else 0.0)
