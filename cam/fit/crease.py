@@ -11,7 +11,7 @@ meeting) where the quad vertex is a corner of the sharp-edge network too.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -22,7 +22,8 @@ __all__ = ["Creases", "mesh_creases", "closest_on_creases", "snap_points", "edge
 @dataclass(frozen=True, eq=False)
 class Creases:
     """Crease segments of a mesh: endpoints a, b float64 (k, 3) mm; corners float64 (c, 3): crease-graph
-    vertices where three or more creases meet or a crease ends."""
+    vertices where three or more creases meet or a crease ends, with their number of creases
+    corner_degree int (c,)."""
 
     a: np.ndarray
     b: np.ndarray
@@ -30,6 +31,7 @@ class Creases:
     tree: cKDTree | None
     corner_tree: cKDTree | None
     reach: float  # half the longest segment: a segment's points lie within it of its midpoint
+    corner_degree: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 40.0) -> Creases:
@@ -51,7 +53,7 @@ def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 
     corners = V[corner_ids]
     return Creases(a=a, b=b, corners=corners, tree=cKDTree(0.5 * (a + b)),
                    corner_tree=cKDTree(corners) if len(corners) else None,
-                   reach=float(0.5 * np.linalg.norm(b - a, axis=1).max()))
+                   reach=float(0.5 * np.linalg.norm(b - a, axis=1).max()), corner_degree=degree[corner_ids])
 
 
 def closest_on_creases(creases: Creases, points: np.ndarray, *, directions: np.ndarray | None = None,
@@ -89,10 +91,13 @@ def closest_on_creases(creases: Creases, points: np.ndarray, *, directions: np.n
 
 
 def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, corner: np.ndarray | None = None,
+                first: np.ndarray | None = None,
                 directions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Move points (n, 3) onto the creases where one lies within `radius` (n,) mm.
 
-    corner bool (n,): these may go to a crease corner within their radius first.
+    corner bool (n,): these may go to a crease corner within their radius first, one point per
+    crease corner: the nearest, except that points flagged in `first` (bool (n,)) choose before
+    the others do.
     directions float64 (n, 3): the direction of the sharp edge each point lies on (zero: any);
     only a crease running within 30 degrees of it takes the point (see `closest_on_creases`).
     Returns the points float64 (n, 3) and bool (n,) which of them moved.
@@ -107,7 +112,8 @@ def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, cor
             ok = d <= radius[sel]
             # One point per crease corner, the nearest: two quad vertices on one corner would
             # collapse the edge between them.
-            order = np.argsort(d)
+            ahead = np.zeros(sel.size, dtype=bool) if first is None else np.asarray(first, dtype=bool)[sel]
+            order = np.lexsort((d, ~ahead))
             taken: set[int] = set()
             for o in order[ok[order]].tolist():
                 if int(i[o]) in taken:
@@ -188,15 +194,30 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
             direction[n] = V[others[0]] - V[vid]
     radius = snap_radius * np.array([np.mean(length[v]) for v in ids.tolist()])
     start = out[ids].copy()
-    snapped = snap_points(creases, start, radius, corner=corner, directions=direction)[0]
+    # A junction of three or more sharp edges goes to a crease corner where as many creases meet
+    # before a vertex where the sharp row only bends may take it: the bend can sit nearer the
+    # corner (the remesher's junction a quad edge off it), but only the junction has the corner's
+    # creases for its sides.
+    junction = np.array([len(set(border_sharp[v])) >= 3 for v in ids.tolist()])
+    snapped = snap_points(creases, start, radius, corner=corner, first=junction, directions=direction)[0]
     # A corner takes no crease corner that lies nearer one of its sharp neighbours than itself:
     # that is the neighbour's place (a crease that bends just before it ends on the part's
-    # border has a crease corner at its end, and the vertex before the end would take it).
+    # border has a crease corner at its end, and the vertex before the end would take it);
+    # except a junction on a junction of creases.
     row = {v: n for n, v in enumerate(ids.tolist())}
-    gone = [n for n in np.flatnonzero(corner).tolist()
+    meets = _on_crease_junction(creases, snapped) & junction
+    gone = [n for n in np.flatnonzero(corner & ~meets).tolist()
             if any(np.linalg.norm(snapped[n] - start[row[o]]) < np.linalg.norm(snapped[n] - start[n])
                    for o in border_sharp[int(ids[n])])]
     if gone:
         snapped[gone] = snap_points(creases, start[gone], radius[gone])[0]
     out[ids] = snapped
     return out
+
+
+def _on_crease_junction(creases: Creases, points: np.ndarray) -> np.ndarray:
+    """bool (n,): which points (n, 3) sit on a crease corner where three or more creases meet."""
+    if creases.corner_tree is None or not len(points):
+        return np.zeros(len(points), dtype=bool)
+    d, i = creases.corner_tree.query(points)
+    return (d <= 1e-12) & (creases.corner_degree[i] >= 3)

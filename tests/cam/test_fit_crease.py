@@ -98,3 +98,20 @@ def test_crease_data_next_to_a_jump_are_not_held_exact():
     q = np.stack([x, np.where(np.arange(12) < 6, 0.0, 0.3), np.zeros(12)], 1)
     np.testing.assert_array_equal(np.flatnonzero(_near_jumps(q)), [4, 5, 6, 7])
     assert not _near_jumps(q[:6]).any()
+
+
+def test_a_junction_takes_the_crease_corner_a_bend_beside_it_is_nearer_to():
+    # The corner of a box (three creases meet at the origin). The quad mesh's junction J of three
+    # sharp edges sits 0.55 mm up the y crease; a sharp edge runs from it to B, 0.36 mm along the x
+    # crease, where the sharp row bends on along that crease. B is nearer the crease corner, but
+    # only J has three sharp edges for the corner's three creases: J goes there, B stays.
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    MV, MF = np.asarray(box.vertices) + 5.0, np.asarray(box.faces)
+    V = np.array([[0, 0.55, 0], [0.36, 0, 0], [0, 3, 0], [3, 3, 0], [3, 0, 0], [0, 0.55, 3], [0, 3, 3]], dtype=float)
+    J, B, N1, X, C, N2, Z = range(7)
+    grids = [np.array([[J, N1], [B, X]]), np.array([[B, X], [C, X]]), np.array([[J, N1], [N2, Z]])]
+    sharp = edge_keys(np.array([[J, N1], [J, N2], [J, B], [B, C]]))
+    cr = mesh_creases(MV, MF)
+    pos = vertex_positions(V, grids, mesh_index(MV, MF), sharp=sharp, creases=cr)
+    np.testing.assert_allclose(pos[J], [0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(pos[B], V[B], atol=1e-12)
