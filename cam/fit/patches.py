@@ -315,9 +315,7 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
                 # Where the border's vertices say the curve runs: their polyline, onto the mesh.
                 return closest_points(index, _polyline_at(seg, np.interp(t, tau, np.arange(len(seg)))))[0]
 
-            # The curve is held on the mesh along its smooth stretches only: along a crease its data are
-            # the crease, and the mesh beside it would let the curve slide off it onto one face.
-            slide = [(float(tau[i]), float(tau[i + 1])) for i in np.flatnonzero(~on)]
+            slide = _slide_ranges(on, tau, h, exact)
             parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, spacing), constraints=cons, length_mm=length,
                                    tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
                                    closest=lambda p: _feet_and_normals(index, p), project=on_mesh,
@@ -359,6 +357,20 @@ def _curve_data(on: np.ndarray, pts: np.ndarray, params: np.ndarray, q_free: np.
         qs.append(q)
         hs.append(h)
     return np.concatenate(qs), np.concatenate(hs), np.concatenate(exact)
+
+
+def _slide_ranges(on: np.ndarray, params: np.ndarray, h: np.ndarray, exact: np.ndarray, reach: float = 0.125
+                  ) -> list[tuple[float, float]]:
+    """Parameter ranges where a curve is held on the mesh: between vertices (parameters `params` (m,))
+    joined by edges that are not sharp (`on`, bool (m - 1,)), and within `reach` of crease data
+    (parameters h (n,)) that are not `exact` (next to a jump). Elsewhere along a crease its data are
+    the crease, and the mesh beside it would let the curve slide off it onto one face; at a jump no
+    curve follows the data, and on the mesh is what is left."""
+    ranges = [(float(params[i]), float(params[i + 1])) for i in np.flatnonzero(~on)]
+    crease = np.zeros(len(h), dtype=bool)
+    for i in np.flatnonzero(on):
+        crease |= (h > params[i]) & (h < params[i + 1])
+    return ranges + [(float(x) - reach, float(x) + reach) for x in h[crease & ~exact]]
 
 
 def _near_jumps(q: np.ndarray, factor: float = 2.0, reach: int = 2) -> np.ndarray:

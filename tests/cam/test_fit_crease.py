@@ -115,3 +115,12 @@ def test_a_junction_takes_the_crease_corner_a_bend_beside_it_is_nearer_to():
     pos = vertex_positions(V, grids, mesh_index(MV, MF), sharp=sharp, creases=cr)
     np.testing.assert_allclose(pos[J], [0, 0, 0], atol=1e-12)
     np.testing.assert_allclose(pos[B], V[B], atol=1e-12)
+
+
+def test_a_curve_slides_on_the_mesh_off_creases_and_at_jumps_of_its_crease_data():
+    from cam.fit.patches import _slide_ranges
+
+    on = np.array([False, True, True])  # vertices at 0, 1, 2, 3: a smooth edge, then two sharp ones
+    h = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0])
+    exact = np.array([False, False, True, False, True, True, True])  # 1.5 is next to a jump
+    assert _slide_ranges(on, np.arange(4.0), h, exact) == [(0.0, 1.0), (1.375, 1.625)]
