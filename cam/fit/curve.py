@@ -4,7 +4,10 @@ A boundary curve is fitted to where the neighbouring patches' own fits put their
 borders (sampled at matching parameters), by linear least squares with a small
 bending term; the points where patches meet (curve ends and T-junctions inside a
 curve) are interpolated exactly, through a KKT system, so every curve that
-passes through a junction agrees on it to round-off.
+passes through a junction agrees on it to round-off. A curve that misses the mesh
+is refined and held on it (its squared distance to the mesh, linearised at its
+closest points, joins the least squares); along a crease it must follow the
+crease data too, not just stay on the mesh.
 """
 
 from __future__ import annotations
