@@ -89,29 +89,6 @@ def sampled_distances(doc: dict, mesh: tuple[np.ndarray, np.ndarray], n: int = 2
     return out
 
 
-def crease_distances(doc: dict, mesh: tuple[np.ndarray, np.ndarray]) -> list[float]:
-    """Per surface, the distance (mm) from its point farthest from the mesh (`cam.fit.measure.surface_peaks`)
-    to the nearest crease of the mesh (dihedral angle over the fit's crease angle, 40 degrees). Where it
-    is about the error itself, the surface cuts or misses a crease: a crease that crosses the patch or
-    runs beside its border, not a lack of control points."""
-    from cam.bspline import surface_from_json
-    from cam.closest import mesh_index
-    from cam.fit.crease import closest_on_creases, mesh_creases
-    from cam.fit.measure import surface_peaks
-
-    index = mesh_index(*mesh)
-    creases = mesh_creases(*mesh, angle_deg=40.0)
-    out = []
-    for entry in doc["surfaces"]:
-        surf = surface_from_json(entry)
-        rows, cols = entry.get("rows") or 1, entry.get("cols") or 1
-        # The search works in quads, as the fit does; the document's knots run over [0, 1].
-        u, v, d = surface_peaks(index, surf.knots_u * rows, surf.knots_v * cols, surf.control_points)
-        k = int(np.argmax(d))
-        out.append(float(closest_on_creases(creases, surf.evaluate(u[k:k + 1] / rows, v[k:k + 1] / cols))[1][0]))
-    return out
-
-
 def worst_at(d: np.ndarray) -> str:
     """Whether a surface's largest distance is on its outer ring of samples (its border) or inside."""
     i, j = np.unravel_index(np.argmax(d), d.shape)
@@ -196,15 +173,18 @@ def main(argv: list[str] | None = None) -> int:
                      f"{cps} | {t[0]:.1f} | {t[1]:.1f} | {t[2]:.1f} | {r['igs'] / 1024:.0f} |")
     for r in results:
         distances = sampled_distances(r["doc"], r["mesh"])
-        near = crease_distances(r["doc"], r["mesh"])
-        bad = [(worst_at(d), c, e["surface_to_mesh_mm"]) for e, d, c in zip(r["doc"]["surfaces"], distances, near)
+        # The fit's own report of where each patch's largest error is, and how far from a crease of the mesh.
+        near = [float("inf") if e.get("worst_crease_mm") is None else e["worst_crease_mm"]
+                for e in r["doc"]["surfaces"]]
+        bad = [(worst_at(d), c, e["max_error_mm"]) for e, d, c in zip(r["doc"]["surfaces"], distances, near)
                if not e["within_tolerance"]]
-        by_crease = sum(c <= 2.0 * s2m for _, c, s2m in bad)
+        by_crease = sum(c <= 2.0 * err for _, c, err in bad)
         lines += ["", f"## {r['name']}: per patch", "",
                   f"Of the {len(bad)} patches over tolerance, {[b[0] for b in bad].count('border')} have their "
                   "largest surface-to-mesh distance on their border (where the boundary curves are) and "
-                  f"{[b[0] for b in bad].count('inside')} inside; {by_crease} have their farthest point within "
-                  "twice its distance of a crease of the mesh (`crease`: the surface cuts or misses a crease there).",
+                  f"{[b[0] for b in bad].count('inside')} inside; {by_crease} have their largest error within twice "
+                  "its size of a crease of the mesh (`crease`: `worst_crease_mm`, how far the point where `max` is "
+                  "lies from one; the surface cuts or misses a crease there).",
                   "", "| patch | quads (rows × cols) | max (mm) | mean (mm) | surface→mesh (mm) | worst at | "
                   "crease (mm) | boundary curve (mm) | control points | refinements | within tolerance |",
                   "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]

@@ -24,7 +24,7 @@ from cam.bspline import FOLD_CHECK_SAMPLES, BSplineSurface, find_folds, make_bsp
 from cam.fit.basis import evaluate_surface
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
 from cam.closest import closest_points, mesh_index
-from cam.fit.crease import edge_keys, mesh_creases, snap_points, vertex_positions
+from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
 from cam.fit.curve import CurveFit, fit_curve
 from cam.fit.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
 from cam.fit.measure import surface_peaks
@@ -46,6 +46,10 @@ class PatchFit:
     folded_fraction: share of the surface that folds over itself (`cam.bspline.find_folds` on the grid the
     planner checks, `FOLD_CHECK_SAMPLES`; 0 for a regular patch), reported because a fold can hug the mesh
     and still pass the distance test.
+    worst_point_mm float64 (3,): where max_error_mm is (the mesh sample, or the point of the surface);
+    worst_crease_mm: its distance to the nearest crease of the mesh (edges sharper than the fit's crease
+    angle; inf without one). About the error itself or less, the surface cuts or misses a crease
+    there: one the patch layout does not follow, which no surface of this patch can.
     """
 
     index: int
@@ -60,6 +64,8 @@ class PatchFit:
     neighbours: tuple[int, ...]
     side_neighbours: dict[str, tuple[int, ...]]
     folded_fraction: float = 0.0
+    worst_point_mm: np.ndarray | None = None
+    worst_crease_mm: float = float("inf")
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,26 +211,35 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                            mesh_edges=True, **opts)
         final.append(done.fit)
         rounds.append(done.rounds)
-        peaks.append(done.peaks[2])
+        peaks.append(done.peaks)
         report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = _sample_errors(P_all, asg_all.patch, final, layout, tolerance_mm)
+    if creases is None:
+        creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg)
     out = []
     for k in range(n):
         R, C = shape[k]
         fit = final[k]
         surf = make_bspline_surface(fit.control_points, fit.knots_u / R, fit.knots_v / C)
-        e = errors[asg_all.patch == k]
+        mine = asg_all.patch == k
+        e = errors[mine]
         # The refinement searched the final surface already, unless it was not given the mesh (mesh_weight 0).
-        found = peaks[k] if peaks[k].size else surface_peaks(index, fit.knots_u, fit.knots_v, fit.control_points)[2]
-        s2m = float(found.max(initial=0.0))
+        found = peaks[k] if peaks[k][2].size else surface_peaks(index, fit.knots_u, fit.knots_v, fit.control_points)
+        s2m = float(found[2].max(initial=0.0))
         berr = max((curve_err[p.curve] for name in SIDES for p in layout.sides[(k, name)]), default=0.0)
         worst = max(float(e.max(initial=0.0)), s2m)
+        if e.size and e.max() >= s2m:
+            at = P_all[mine][int(np.argmax(e))]
+        else:
+            i = int(np.argmax(found[2]))
+            at = surf.evaluate(found[0][i:i + 1] / R, found[1][i:i + 1] / C)[0]
         out.append(PatchFit(index=k, surface=surf, max_error_mm=worst, mean_error_mm=float(e.mean()) if e.size else 0.0,
                             surface_to_mesh_mm=s2m, boundary_error_mm=berr, samples=int(e.size), refinements=rounds[k],
                             within_tolerance=worst <= tolerance_mm, neighbours=layout.neighbours[k],
                             side_neighbours={s: layout.side_neighbours[(k, s)] for s in SIDES},
-                            folded_fraction=find_folds(surf, samples=FOLD_CHECK_SAMPLES)[0]))
+                            folded_fraction=find_folds(surf, samples=FOLD_CHECK_SAMPLES)[0],
+                            worst_point_mm=at, worst_crease_mm=float(closest_on_creases(creases, at[None])[1][0])))
     report(1.0, "fitted")
     return FitResult(patches=out, max_gap_mm=_max_gap(out, layout, shape), curves=len(curves),
                      tolerance_mm=tolerance_mm)

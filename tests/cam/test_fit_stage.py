@@ -59,6 +59,8 @@ def test_stage_writes_surfaces_json_and_iges(tmp_path):
     assert first["max_error_mm"] <= 0.032 and first["knots_u"][0] == 0.0 and first["knots_u"][-1] == 1.0
     assert doc["tolerance_mm"] == pytest.approx(0.16 / 5)  # unset: a fifth of the default scallop height
     assert doc["folded"] == [] and first["folded_fraction"] == 0.0
+    # Where the largest error is, and no crease near it: a cylinder has none (JSON null, not Infinity).
+    assert len(first["worst_point_mm"]) == 3 and first["worst_crease_mm"] is None
     s = surface_from_json(first)
     assert s.control_points.shape[2] == 3
     assert out["surfaces.igs"].read_bytes().count(b"     128") == 4  # two entities, two DE lines each

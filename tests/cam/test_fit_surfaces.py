@@ -161,6 +161,9 @@ def test_a_crease_inside_a_patch_is_reported_not_accepted():
     (p,) = result.patches
     assert not p.within_tolerance and p.max_error_mm > 0.005 and result.over_tolerance == [0]
     assert p.refinements >= 1
+    # Where: at the crease (the ridge s = 10, a line of the mesh sharper than 40 degrees).
+    assert abs(p.worst_point_mm[0] - 10.0) <= p.worst_crease_mm + 1e-9
+    assert p.worst_crease_mm <= p.max_error_mm
     # Split at the crease, the same part fits, and the two faces share the crease exactly.
     split = fit_patches(V, [ids[:6], ids[5:]], MV, MF, tolerance_mm=0.005)
     assert split.over_tolerance == [] and split.max_gap_mm <= 1e-9

@@ -76,7 +76,12 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
                          f"{worst.max_error_mm:.4f} mm); raise fit.tolerance_mm or fit.max_refinements, or set "
                          "fit.require_tolerance to false to accept them", outputs=out)
     folded = [ids[k] for k in result.folded]
-    notes = ([f"{len(over)} patches over tolerance: {over}"] if over else []) + (
+    # Where the worst point is next to a crease of the mesh, the layout is what to change, not the fit.
+    at_crease = [ids[p.index] for p in result.patches
+                 if not p.within_tolerance and p.worst_crease_mm <= 2.0 * p.max_error_mm]
+    notes = ([f"{len(over)} patches over tolerance: {over}"
+              + (f" ({len(at_crease)} at a crease of the mesh their layout does not follow: {at_crease})"
+                 if at_crease else "")] if over else []) + (
         [f"{len(folded)} surfaces fold over themselves: {folded}"] if folded else [])
     ctx.progress(1.0, "; ".join(notes) or None)
     return out
@@ -100,6 +105,8 @@ def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | N
                  "mean_error_mm": p.mean_error_mm, "surface_to_mesh_mm": p.surface_to_mesh_mm,
                  "boundary_error_mm": p.boundary_error_mm, "within_tolerance": p.within_tolerance,
                  "folded_fraction": p.folded_fraction,
+                 "worst_point_mm": None if p.worst_point_mm is None else [float(x) for x in p.worst_point_mm],
+                 "worst_crease_mm": p.worst_crease_mm if np.isfinite(p.worst_crease_mm) else None,
                  "samples": p.samples, "refinements": p.refinements,
                  "neighbours": [ids[k] for k in p.neighbours],
                  "sides": {name: [ids[k] for k in nb] for name, nb in p.side_neighbours.items()}}
