@@ -100,6 +100,14 @@ def test_failures_say_what_to_change(tmp_path):
     with pytest.raises(StageError, match="fit.tolerance_mm") as err:
         run_fit(ctx)
     assert set(err.value.outputs) == {"surfaces.json", "surfaces.igs"}  # kept for inspection
+    # The patch spans the roof's ridge: the message says the layout, not the fit, is at fault there.
+    assert "1 of them ([10]) have it at a crease of the mesh" in str(err.value)
+    ctx.params["fit"]["require_tolerance"] = False
+    notes = []
+    ctx.progress = lambda f, m=None: notes.append(m)
+    run_fit(ctx)
+    assert notes[-1] == ("1 patches over tolerance: [10] (1 at a crease of the mesh their layout does not follow: "
+                         "[10])")
     doc = json.loads((tmp_path / "patches.json").read_text())
     doc["patches"][0]["faces"] = doc["patches"][0]["faces"][:-1]
     doc["patches"][0].pop("grid", None)

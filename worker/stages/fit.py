@@ -69,16 +69,18 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     out = {"surfaces.json": write_json(ctx.output("surfaces.json"), document),
            "surfaces.igs": write_iges(ctx.output("surfaces.igs"), [p.surface for p in result.patches], labels=ids)}
     over = [ids[k] for k in result.over_tolerance]
-    if over and params["require_tolerance"]:
-        worst = max(result.patches, key=lambda p: p.max_error_mm)
-        raise StageError(f"{len(over)} of {len(ids)} patches deviate from the mesh by more than "
-                         f"fit.tolerance_mm = {result.tolerance_mm} mm (worst: patch {ids[worst.index]}, "
-                         f"{worst.max_error_mm:.4f} mm); raise fit.tolerance_mm or fit.max_refinements, or set "
-                         "fit.require_tolerance to false to accept them", outputs=out)
-    folded = [ids[k] for k in result.folded]
     # Where the worst point is next to a crease of the mesh, the layout is what to change, not the fit.
     at_crease = [ids[p.index] for p in result.patches
                  if not p.within_tolerance and p.worst_crease_mm <= 2.0 * p.max_error_mm]
+    if over and params["require_tolerance"]:
+        worst = max(result.patches, key=lambda p: p.max_error_mm)
+        layout = (f"; {len(at_crease)} of them ({at_crease}) have it at a crease of the mesh that their patch "
+                  "layout does not follow, which segment's parameters change, not the fit's") if at_crease else ""
+        raise StageError(f"{len(over)} of {len(ids)} patches deviate from the mesh by more than "
+                         f"fit.tolerance_mm = {result.tolerance_mm} mm (worst: patch {ids[worst.index]}, "
+                         f"{worst.max_error_mm:.4f} mm){layout}; raise fit.tolerance_mm or fit.max_refinements, or "
+                         "set fit.require_tolerance to false to accept them", outputs=out)
+    folded = [ids[k] for k in result.folded]
     notes = ([f"{len(over)} patches over tolerance: {over}"
               + (f" ({len(at_crease)} at a crease of the mesh their layout does not follow: {at_crease})"
                  if at_crease else "")] if over else []) + (
