@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles"]
+__all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles", "triangle_normals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +42,13 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
     radius = float(np.linalg.norm(V[F] - centroids[:, None, :], axis=2).max())
     return MeshIndex(vertices=V, faces=F, vertex_tree=cKDTree(V[used]), centroid_tree=cKDTree(centroids),
                      radius=radius)
+
+
+def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
+    """Unit normals float64 (k, 3) of the mesh's triangles int (k,) (as `closest_points` returns them)."""
+    corners = index.vertices[index.faces[np.asarray(triangles, dtype=np.int64)]]
+    n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
 def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray

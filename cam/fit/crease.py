@@ -11,7 +11,7 @@ meeting) where the quad vertex is a corner of the sharp-edge network too.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -31,7 +31,7 @@ class Creases:
     tree: cKDTree | None
     corner_tree: cKDTree | None
     reach: float  # half the longest segment: a segment's points lie within it of its midpoint
-    corner_degree: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    corner_degree: np.ndarray
 
 
 def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 40.0) -> Creases:
@@ -46,7 +46,8 @@ def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 
     edges = mesh.face_adjacency_edges[sharp]
     V = mesh.vertices
     if not len(edges):
-        return Creases(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), None, None, 0.0)
+        return Creases(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), None, None, 0.0,
+                       np.zeros(0, dtype=np.int64))
     degree = np.bincount(edges.ravel(), minlength=len(V))
     corner_ids = np.flatnonzero((degree >= 3) | (degree == 1))
     a, b = V[edges[:, 0]], V[edges[:, 1]]

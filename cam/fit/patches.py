@@ -23,7 +23,7 @@ import numpy as np
 from cam.bspline import FOLD_CHECK_SAMPLES, BSplineSurface, find_folds, make_bspline_surface
 from cam.fit.basis import evaluate_surface
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
-from cam.closest import closest_points, mesh_index
+from cam.closest import closest_points, mesh_index, triangle_normals
 from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
 from cam.fit.curve import CurveFit, fit_curve
 from cam.fit.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
@@ -82,6 +82,13 @@ class FitResult:
     def over_tolerance(self) -> list[int]:
         """Indices of the patches whose max_error_mm exceeds the tolerance."""
         return [p.index for p in self.patches if not p.within_tolerance]
+
+    @property
+    def at_crease(self) -> list[int]:
+        """Indices of the patches over tolerance whose worst point lies within twice their error of a
+        crease of the mesh: the layout misses that crease, which no refinement of the fit mends."""
+        return [p.index for p in self.patches
+                if not p.within_tolerance and p.worst_crease_mm <= 2.0 * p.max_error_mm]
 
     @property
     def folded(self) -> list[int]:
@@ -198,7 +205,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
                                     knot_spacing, tolerance_mm, max_refinements, min_span, kink_angle_deg)
     final: list[SurfaceFit] = []
     rounds: list[int] = []
-    peaks: list[np.ndarray] = []
+    peaks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for k in range(n):
         ku, kv, cp = _constrained_start(k, layout, coarse[k], curves)
         pts, nrm, u, v = data(k)
@@ -345,11 +352,8 @@ def _feet_and_normals(index, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     """Closest mesh points to `points` (k, 3) and the unit normals of the distance there (k, 3): towards
     the point where it is off the mesh (exact at edges and creases too), else the triangle's normal."""
     feet, dist, tri, _ = closest_points(index, points)
-    corners = index.vertices[index.faces[tri]]
-    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    face /= np.maximum(np.linalg.norm(face, axis=1), 1e-300)[:, None]
     off = dist > 1e-9
-    normals = np.where(off[:, None], (points - feet) / np.where(off, dist, 1.0)[:, None], face)
+    normals = np.where(off[:, None], (points - feet) / np.where(off, dist, 1.0)[:, None], triangle_normals(index, tri))
     return feet, normals
 
 

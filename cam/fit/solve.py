@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
 from cam.bspline import c0_knots, find_folds, make_bspline_surface
-from cam.closest import MeshIndex, closest_points
+from cam.closest import MeshIndex, closest_points, triangle_normals
 from cam.fit.basis import evaluate_surface, span_params, surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
 from cam.fit.knots import lattice_knots
 from cam.fit.param import Anchors, foot_frames, project_points
@@ -253,9 +253,7 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bo
     u, v = uu.ravel(), vv.ravel()
     frame = foot_frames(ku, kv, cp, u, v, degree=degree)
     near, dist, tri, _ = closest_points(mesh, frame.point)
-    a, b, c = (mesh.vertices[mesh.faces[tri, i]] for i in range(3))
-    fn = np.cross(b - a, c - a)
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    fn = triangle_normals(mesh, tri)
     # Drawn onto the mesh only where the mesh lies along the normal from the point: past the edge of
     # an open mesh, or across a crease, the closest point is on an edge off to the side, and the
     # plane of its triangle would bend the surface towards where the mesh is not.

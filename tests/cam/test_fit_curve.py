@@ -119,4 +119,5 @@ def test_a_curve_along_a_crease_follows_it_not_just_the_faces_beside_it():
         fit = fit_curve(P, t, exact=exact, **kw)
         miss = np.linalg.norm(evaluate_curve(fit.knots, fit.control_points, t)[0] - P, axis=1).max()
         assert bool(miss <= tol) == within
-        assert fit.max_error >= (miss if exact is not None else 0.0)
+        # Without them the curve reports itself within while it misses the crease; with them, honestly.
+        assert fit.max_error >= miss if exact is not None else fit.max_error <= tol < miss

@@ -105,9 +105,10 @@ def test_failures_say_what_to_change(tmp_path):
     ctx.params["fit"]["require_tolerance"] = False
     notes = []
     ctx.progress = lambda f, m=None: notes.append(m)
-    run_fit(ctx)
+    doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
     assert notes[-1] == ("1 patches over tolerance: [10] (1 at a crease of the mesh their layout does not follow: "
                          "[10])")
+    assert doc["over_tolerance"] == doc["at_crease"] == [10]
     doc = json.loads((tmp_path / "patches.json").read_text())
     doc["patches"][0]["faces"] = doc["patches"][0]["faces"][:-1]
     doc["patches"][0].pop("grid", None)

@@ -70,8 +70,7 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
            "surfaces.igs": write_iges(ctx.output("surfaces.igs"), [p.surface for p in result.patches], labels=ids)}
     over = [ids[k] for k in result.over_tolerance]
     # Where the worst point is next to a crease of the mesh, the layout is what to change, not the fit.
-    at_crease = [ids[p.index] for p in result.patches
-                 if not p.within_tolerance and p.worst_crease_mm <= 2.0 * p.max_error_mm]
+    at_crease = [ids[k] for k in result.at_crease]
     if over and params["require_tolerance"]:
         worst = max(result.patches, key=lambda p: p.max_error_mm)
         layout = (f"; {len(at_crease)} of them ({at_crease}) have it at a crease of the mesh that their patch "
@@ -115,7 +114,7 @@ def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | N
         surfaces.append(entry)
     return {"units": "mm", "tolerance_mm": result.tolerance_mm, "max_c0_gap_mm": result.max_gap_mm,
             "boundary_curves": result.curves, "over_tolerance": [ids[k] for k in result.over_tolerance],
-            "folded": [ids[k] for k in result.folded],
+            "folded": [ids[k] for k in result.folded], "at_crease": [ids[k] for k in result.at_crease],
             "skipped": list(skipped or []), "surfaces": surfaces}
 
 
