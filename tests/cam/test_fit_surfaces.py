@@ -226,6 +226,34 @@ def test_a_patch_one_quad_wide_refines_in_its_middle():
     np.testing.assert_array_equal(done.fit.control_points[:, [0, -1]][..., 2], 0.0)
 
 
+@pytest.mark.xfail(strict=True, reason="known defect: the surface is within tolerance on the fit's lattice (1 mm "
+                   "apart here) but 0.66 mm off the bump between its points (fit_patches reports that, from its peak search). A refit after knot insertion is judged "
+                   "on the lattice alone, so one within tolerance there keeps its start (the refit returns the same "
+                   "surface); drawing the peaks the search found into the refit lowered it to 0.63 mm, and 0.18 mm "
+                   "without the 10 % gain rule, not within.")
+def test_a_patch_one_quad_wide_is_within_tolerance_between_its_lattice_points():
+    # The same bump as above, measured as fit_patches reports a surface: everywhere on it, here on a
+    # dense grid against the mesh, not only at the lattice's points.
+    from cam.fit.basis import evaluate_surface
+    from cam.fit.refine import fit_refined
+
+    L = 4.0
+    MV, MF = triangle_mesh(bump(1.0, L / 2, L / 2, 0.4), np.linspace(0, L, 41), np.linspace(0, L, 41))
+    s, t = MV[:, 0] / L, MV[:, 1] / L
+    near = np.minimum.reduce([s, 1 - s, t, 1 - t]) < 0.15
+    knots = np.array([0.0] * 4 + [1.0] * 4)
+    S, T = np.meshgrid(np.linspace(0, L, 4), np.linspace(0, L, 4), indexing="ij")
+    index = mesh_index(MV, MF)
+    done = fit_refined(MV[near], np.tile([0.0, 0.0, 1.0], (near.sum(), 1)), s[near], t[near], knots_u=knots,
+                       knots_v=knots, control_points=np.stack([S, T, np.zeros_like(S)], -1), fix_border=True,
+                       tolerance_mm=0.032, lengths_mm=(L, L), mesh=index)
+    g = np.linspace(0.0, 1.0, 401)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    f = done.fit
+    on = evaluate_surface(f.knots_u, f.knots_v, f.control_points, uu.ravel(), vv.ravel(), order=0)[(0, 0)]
+    assert closest_points(index, on)[1].max() <= 0.032
+
+
 def test_the_free_fits_refinement_stays_out_of_the_final_surface():
     # A cylinder meshed with one triangle pair per quad: its facets leave the cylinder by 0.05 mm,
     # so the free fit splits spans (in both directions: refinement splits the spans of a sample) to
