@@ -104,7 +104,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 pull_weight: float = 0.3, pull_sides: tuple[bool, bool, bool, bool] = (True, True, True, True),
                 clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
                 mesh: MeshIndex | None = None, mesh_weight: float = 1.0, mesh_spacing: float = 0.25,
-                mesh_edges: bool = False,
+                mesh_edges: bool = False, mesh_points: tuple[np.ndarray, np.ndarray] | None = None,
                 degree: tuple[int, int] = (3, 3)) -> SurfaceFit:
     """Fit a B-spline surface with the given knots to samples, keeping `fixed` control points.
 
@@ -134,6 +134,9 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     mesh_edges: draw the points whose closest mesh point is off to the side (on an edge: past a
     crease, or past the mesh's own border) towards it as well, along the distance's own direction
     (for a surface inside fixed borders, where the surface has no business past the mesh).
+    mesh_points: parameters (u (k,), v (k,)) measured and drawn onto the mesh besides the grid (the
+    peaks a search found between its points: a refit after knot insertion for them must see them, or
+    a start within tolerance on the grid is the best step it finds, and it gives back the same surface).
     Stops when the largest distance is within tolerance and no longer improving, when it stops
     improving, or after `iterations` steps; returns the best step seen: the least folded, and of
     those the closest (`SurfaceFit.improves_on`). A step that folds the net more is taken again
@@ -183,7 +186,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         off = r - along[:, None] * frame.normal
         clamped = np.linalg.norm(off, axis=1) > 1e-6 + 1e-3 * np.abs(along)
         counted = ~clamped if clamped_samples == "drop" else np.ones(len(P), dtype=bool)
-        grid = _surface_grid(ku, kv, cp, mesh, mesh_spacing, degree, mesh_edges) if mesh is not None else None
+        grid = _surface_grid(ku, kv, cp, mesh, mesh_spacing, degree, mesh_edges, mesh_points) \
+            if mesh is not None else None
         extra = {} if grid is None else dict(surface_u=grid[0], surface_v=grid[1], surface_distance=grid[2])
         fit = SurfaceFit(ku, kv, cp, u, v, dist, clamped, counted, it,
                          find_folds(make_bspline_surface(cp, ku, kv, degree=degree))[0], **extra)
@@ -240,8 +244,9 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     return best
 
 
-def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bool = False):
-    """Points of the surface on a grid of parameters `spacing` apart (and the far ends), and the mesh near them.
+def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bool = False, points=None):
+    """Points of the surface on a grid of parameters `spacing` apart (and the far ends, and the parameters
+    `points` (u (k,), v (k,)) where given), and the mesh near them.
 
     Returns u, v (m,), distance (m,) mm to the mesh, the closest mesh points (m, 3), the normals of
     their triangles (m, 3), and ok bool (m,): the mesh lies along its triangle's normal from the
@@ -251,6 +256,9 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bo
     # The lattice's distinct values: the multiples of `spacing` inside the domain, and its ends.
     uu, vv = np.meshgrid(*(np.unique(lattice_knots(k[0], k[-1], spacing)) for k in (ku, kv)), indexing="ij")
     u, v = uu.ravel(), vv.ravel()
+    if points is not None:
+        u = np.concatenate([u, np.clip(points[0], ku[0], ku[-1])])
+        v = np.concatenate([v, np.clip(points[1], kv[0], kv[-1])])
     frame = foot_frames(ku, kv, cp, u, v, degree=degree)
     near, dist, tri, _ = closest_points(mesh, frame.point)
     fn = triangle_normals(mesh, tri)
