@@ -63,9 +63,9 @@ class PatchFit:
     within_tolerance: bool
     neighbours: tuple[int, ...]
     side_neighbours: dict[str, tuple[int, ...]]
+    worst_point_mm: np.ndarray
+    worst_crease_mm: float
     folded_fraction: float = 0.0
-    worst_point_mm: np.ndarray | None = None
-    worst_crease_mm: float = float("inf")
 
 
 @dataclass(frozen=True, eq=False)

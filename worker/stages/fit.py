@@ -74,7 +74,7 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     if over and params["require_tolerance"]:
         worst = max(result.patches, key=lambda p: p.max_error_mm)
         layout = (f"; {len(at_crease)} of them ({at_crease}) have it at a crease of the mesh that their patch "
-                  "layout does not follow, which segment's parameters change, not the fit's") if at_crease else ""
+                  "layout does not follow, which remesh's or segment's parameters change, not the fit's") if at_crease else ""
         raise StageError(f"{len(over)} of {len(ids)} patches deviate from the mesh by more than "
                          f"fit.tolerance_mm = {result.tolerance_mm} mm (worst: patch {ids[worst.index]}, "
                          f"{worst.max_error_mm:.4f} mm){layout}; raise fit.tolerance_mm or fit.max_refinements, or "
@@ -106,7 +106,7 @@ def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | N
                  "mean_error_mm": p.mean_error_mm, "surface_to_mesh_mm": p.surface_to_mesh_mm,
                  "boundary_error_mm": p.boundary_error_mm, "within_tolerance": p.within_tolerance,
                  "folded_fraction": p.folded_fraction,
-                 "worst_point_mm": None if p.worst_point_mm is None else [float(x) for x in p.worst_point_mm],
+                 "worst_point_mm": [float(x) for x in p.worst_point_mm],
                  "worst_crease_mm": p.worst_crease_mm if np.isfinite(p.worst_crease_mm) else None,
                  "samples": p.samples, "refinements": p.refinements,
                  "neighbours": [ids[k] for k in p.neighbours],
