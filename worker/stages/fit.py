@@ -74,7 +74,8 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     if over and params["require_tolerance"]:
         worst = max(result.patches, key=lambda p: p.max_error_mm)
         layout = (f"; {len(at_crease)} of them ({at_crease}) have it at a crease of the mesh that their patch "
-                  "layout does not follow, which remesh's or segment's parameters change, not the fit's") if at_crease else ""
+                  "layout does not follow, which remesh's or segment's parameters change, not the fit's"
+                  ) if at_crease else ""
         raise StageError(f"{len(over)} of {len(ids)} patches deviate from the mesh by more than "
                          f"fit.tolerance_mm = {result.tolerance_mm} mm (worst: patch {ids[worst.index]}, "
                          f"{worst.max_error_mm:.4f} mm){layout}; raise fit.tolerance_mm or fit.max_refinements, or "
