@@ -77,8 +77,9 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     fixed borders, at the peaks `cam.fit.measure.surface_peaks` finds between its points, which then
     count in comparing rounds too, and are returned), except within `border_band` parameter units of a fixed border
     (at most a quarter of the domain's narrower side, so a patch one quad wide still refines in its
-    middle) unless farther from the mesh than the border is. A round that lowers the error beyond
-    the tolerance (`SurfaceFit.excess`) by less than the fraction `min_gain` ends the refinement.
+    middle) unless farther from the mesh than the border is. Two rounds in a row that each lower the
+    error beyond the tolerance (`SurfaceFit.excess`) of the best fit so far by less than the fraction
+    `min_gain` end the refinement.
     Returns the best fit, the rounds used and the unrefined fit (`Refined`).
     """
     mode = "drop" if fix_border else "pull"
@@ -86,12 +87,14 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     fixed = None if cp is None or not fix_border else border_mask(cp.shape[:2])
     fit = fit_surface(points, normals, u, v, knots_u=knots_u, knots_v=knots_v, control_points=cp, fixed=fixed,
                       tolerance_mm=tolerance_mm, clamped_samples=mode, warm=False, **options)
-    first, rounds = fit, 0
+    first, rounds, weak = fit, 0, 0
     # The peaks between the lattice's points count for the final surfaces only (inside fixed borders):
     # a free fit places its borders, which its lattice measures, and searching its inside too
     # changed its refinement and the curves fitted to its borders (Block's 5 and 6: 0.038 -> 0.074 mm).
     mesh = options.get("mesh") if fix_border else None
     peaks = _peaks(mesh, fit)
+    # `best` is what is returned; `fit` what the next round refines (after a weak round, its refit).
+    best, best_peaks = fit, peaks
     while rounds < max_refinements and max(fit.max_error, peaks[2].max(initial=0.0)) > tolerance_mm:
         bad = (fit.distance > tolerance_mm) & ~fit.clamped  # spans with data inside, not border reach
         # Spans where the surface leaves the mesh: on the fit's lattice, and where the search between
@@ -124,14 +127,19 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                             clamped_samples=mode, warm=not fix_border,
                             mesh_points=(peaks[0], peaks[1]) if peaks[0].size else None, **options)
         refit_peaks = _peaks(mesh, refit)
-        improved = refit.folded <= fit.folded and _improves(refit, refit_peaks, fit, peaks, tolerance_mm)
-        # Each round can multiply the control points by four; a round that gains little means
-        # the remaining error is not a lack of freedom (a border held by its curve, noise).
-        enough = improved and _improves(refit, refit_peaks, fit, peaks, tolerance_mm, by=min_gain)
+        improved = refit.folded <= best.folded and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm)
+        # Each round can multiply the control points by four; two rounds in a row that gain little
+        # mean the remaining error is not a lack of freedom (a border held by its curve, noise). One
+        # such round is not enough to tell: spans still wider than a feature gain little from the
+        # first split (a bump a tenth of its patch wide: 2 %, then within tolerance two rounds on).
+        enough = improved and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm, by=min_gain)
         if improved:
-            fit, peaks = refit, refit_peaks
-        if not enough:
+            best, best_peaks = refit, refit_peaks
+        weak = 0 if enough else weak + 1
+        if weak >= 2:
             break
+        fit, peaks = refit, refit_peaks
+    fit, peaks = best, best_peaks
     return Refined(fit, rounds, first, peaks)
 
 

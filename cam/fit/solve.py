@@ -254,7 +254,7 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bo
     the other points off the mesh are ok too, their normal the direction from the closest point.
     """
     # The lattice's distinct values: the multiples of `spacing` inside the domain, and its ends.
-    uu, vv = np.meshgrid(*(np.unique(lattice_knots(k[0], k[-1], spacing)) for k in (ku, kv)), indexing="ij")
+    uu, vv = np.meshgrid(*(_lattice_values(k, spacing) for k in (ku, kv)), indexing="ij")
     u, v = uu.ravel(), vv.ravel()
     if points is not None:
         u = np.concatenate([u, np.clip(points[0], ku[0], ku[-1])])
@@ -274,6 +274,22 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bo
         fn[side] = r[side] / dist[side, None]
         ok |= side
     return u, v, dist, near, fn, ok
+
+
+def _lattice_values(knots: np.ndarray, spacing: float) -> np.ndarray:
+    """The lattice's values along one direction: the multiples of `spacing` inside the domain, its ends,
+    and the quarter points of every knot span shorter than twice `spacing`.
+
+    In a span no wider than the spacing the multiples fall on its knots only, and a refit after knot
+    insertion met the mesh there and bulged between them, unmeasured and undrawn (a bump one quad wide
+    behind fixed borders: 0.0014 mm on the lattice, 0.66 mm between its points).
+    """
+    values = np.unique(lattice_knots(knots[0], knots[-1], spacing))
+    k = np.unique(knots)
+    lo, hi = k[:-1], k[1:]
+    short = (hi - lo) < 2 * spacing
+    quarters = (lo[short, None] + np.array([0.25, 0.5, 0.75]) * (hi - lo)[short, None]).ravel()
+    return np.unique(np.concatenate([values, quarters]))
 
 
 def _speed2(tangent: np.ndarray, length_mm: float) -> np.ndarray:
