@@ -127,8 +127,9 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     u = u1, v = v0, v = v1; a patch fitted on its own, not across a crease, where samples beyond
     belong to the other face); "drop" ignores them (a border that is a shared curve).
     mesh: the triangle mesh the samples come from. With it, every step also measures the surface
-    itself on a grid of parameters `mesh_spacing` apart (the same points whatever the knots, so fits
-    with different knots compare on them) against the mesh, and draws those points
+    itself on a grid of parameters `mesh_spacing` apart (the same points for any knots whose spans are
+    all at least twice that wide, so fits with different knots compare on them; shorter spans add their
+    quarter points) against the mesh, and draws those points
     onto the mesh (their closest points, along the mesh normal there, `mesh_weight` in all against
     the samples' 1): samples alone leave a span with few of them free to bulge between them.
     mesh_edges: draw the points whose closest mesh point is off to the side (on an edge: past a
@@ -253,7 +254,6 @@ def _surface_grid(ku, kv, cp, mesh: MeshIndex, spacing: float, degree, edges: bo
     point (within 27°) and the triangle faces the way the surface does (within 60°). With `edges`,
     the other points off the mesh are ok too, their normal the direction from the closest point.
     """
-    # The lattice's distinct values: the multiples of `spacing` inside the domain, and its ends.
     uu, vv = np.meshgrid(*(_lattice_values(k, spacing) for k in (ku, kv)), indexing="ij")
     u, v = uu.ravel(), vv.ravel()
     if points is not None:
