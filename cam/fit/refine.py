@@ -139,8 +139,7 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         if weak >= 2:
             break
         fit, peaks = refit, refit_peaks
-    fit, peaks = best, best_peaks
-    return Refined(fit, rounds, first, peaks)
+    return Refined(best, rounds, first, best_peaks)
 
 
 def _peaks(mesh, fit: SurfaceFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

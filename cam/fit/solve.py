@@ -284,7 +284,7 @@ def _lattice_values(knots: np.ndarray, spacing: float) -> np.ndarray:
     insertion met the mesh there and bulged between them, unmeasured and undrawn (a bump one quad wide
     behind fixed borders: 0.0014 mm on the lattice, 0.66 mm between its points).
     """
-    values = np.unique(lattice_knots(knots[0], knots[-1], spacing))
+    values = lattice_knots(knots[0], knots[-1], spacing)
     k = np.unique(knots)
     lo, hi = k[:-1], k[1:]
     short = (hi - lo) < 2 * spacing
