@@ -2,7 +2,10 @@
 
 QuadriFlow (through ``pyQuadriFlow``) runs in a child process with a timeout,
 because on rare inputs it loops forever; a timeout, a crash or a result that
-fails the checks is retried with the next seed. The accepted result is
+fails the checks is retried with the next seed. How many of the input's creases
+QuadriFlow's edges follow depends on its seed, so several results that pass are
+compared and the one that follows most of them is kept
+(:mod:`cam.creasefollow`). A result is
 repaired where that is small and safe (:mod:`cam.quadcheck`), oriented like
 the input, and its vertices are projected onto the input triangles: QuadriFlow
 works in single precision, and the projection restores double precision (and
@@ -27,13 +30,13 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cam.closest import MeshIndex, closest_points, mesh_index
+from cam.creasefollow import measure_crease_following
 from cam.quadcheck import inspect_quad_mesh, repair_quad_mesh
 from cam.quadmesh import face_areas, face_normals
 
 __all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]
 
 _POLL_S = 0.25
-_TARGET_JITTER = (0.0, -0.04, 0.04, -0.08, 0.08)
 
 
 class QuadriflowFailed(RuntimeError):
@@ -221,6 +224,7 @@ def remesh_quads(
     target_faces: int,
     seed: int = 0,
     attempts: int = 3,
+    candidates: int = 3,
     timeout_s: float = 600.0,
     preserve_sharp: bool = True,
     min_cost_flow: bool = False,
@@ -239,14 +243,17 @@ def remesh_quads(
     target_faces
         Quads to aim for, ≥ 1.
     seed
-        Seed of the first attempt; attempt ``i`` uses ``seed + i`` and, from the
-        second attempt on, a face count a few percent off the target
-        (QuadriFlow's rare hangs and holes depend on the exact sampling).
+        Seed of the first attempt; attempt ``i`` uses ``seed + i``.
     attempts
-        QuadriFlow runs before giving up, ≥ 1. When some of them failed only on
+        Most QuadriFlow runs, ≥ 1. When none passed and some failed on
         triangular holes that cannot be paired, one more run at a quarter of the
         faces fills them and splits every face into four quads
         (:func:`cam.quadcheck.split_into_quads`); the report says ``"split": true``.
+    candidates
+        Runs that pass the checks to compare, ≥ 1: attempts stop once this many
+        passed, and of those the one whose edges follow the most crease length
+        of the input is kept (the nearer one, by Hausdorff distance, on a tie).
+        The report lists them under ``"candidates"``.
     timeout_s
         Limit of one run, seconds.
     preserve_sharp
@@ -274,22 +281,22 @@ def remesh_quads(
     tris = tris.astype(np.int64)
     if tris.min() < 0 or tris.max() >= len(verts):
         raise ValueError(f"triangles index vertices {tris.min()}..{tris.max()} but there are {len(verts)}")
-    if target_faces < 1 or attempts < 1 or timeout_s <= 0:
-        raise ValueError(f"need target_faces ≥ 1, attempts ≥ 1, timeout_s > 0; got {target_faces}, {attempts}, {timeout_s}")
+    if target_faces < 1 or attempts < 1 or candidates < 1 or timeout_s <= 0:
+        raise ValueError(f"need target_faces ≥ 1, attempts ≥ 1, candidates ≥ 1, timeout_s > 0; got {target_faces}, "
+                         f"{attempts}, {candidates}, {timeout_s}")
     diag = float(np.linalg.norm(np.ptp(verts[np.unique(tris)], axis=0)))
     if diag <= 0:
         raise ValueError("the mesh has zero extent")
     loops = boundary_loop_count(tris, len(verts))
     failures: list[str] = []
+    accepted: list[tuple[tuple[float, float], int, RemeshResult]] = []
     # After the plain attempts, one more at a quarter of the faces may split every face into quads to close
     # triangular holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
     for attempt in range(attempts + 1):
         split = attempt == attempts
-        if split and not any("triangular holes" in f for f in failures):
+        if split and (accepted or not any("triangular holes" in f for f in failures)):
             break
-        run_seed = seed + attempt
-        # Failures (hangs, holes) depend on the exact sampling: later attempts also nudge the face count.
-        run_target = max(1, round(target_faces * (1.0 + _TARGET_JITTER[attempt % len(_TARGET_JITTER)])))
+        run_seed, run_target = seed + attempt, int(target_faces)
         if split:
             run_seed, run_target = seed, max(1, round(target_faces / 4))
         if progress is not None:
@@ -307,14 +314,27 @@ def remesh_quads(
         except (QuadriflowFailed, ValueError) as exc:
             failures.append(f"seed {run_seed}, {run_target} faces: {exc}")
             continue
+        creases = measure_crease_following(out_v, out_f, verts, tris)
         report = {
             "seed": run_seed, "attempts": attempt + 1, "quadriflow_target_faces": run_target,
             "split": any("split every face" in r for r in facts["repairs"]),
-            "failed_attempts": failures,
+            "failed_attempts": list(failures),
             "target_faces": int(target_faces), "faces": len(out_f), "vertices": len(out_v),
             "input_triangles": len(tris), "input_boundary_loops": loops, "quadriflow_s": quadriflow_s,
-            "total_s": time.monotonic() - started, **facts,
+            "total_s": time.monotonic() - started, **facts, **creases.as_dict(),
         }
-        return RemeshResult(vertices=out_v, faces=out_f, report=report)
+        accepted.append(((creases.missed_length_mm, facts["hausdorff_mm"]), attempt,
+                         RemeshResult(vertices=out_v, faces=out_f, report=report)))
+        if len(accepted) >= candidates:
+            break
+    if accepted:
+        # The layout whose edges follow most of the input's creases; the closer one on a tie.
+        best = min(accepted, key=lambda item: (item[0], item[1]))[2]
+        best.report["attempts"] = accepted[-1][1] + 1
+        best.report["failed_attempts"] = failures
+        best.report["candidates"] = [
+            {"seed": r.report["seed"], "faces": r.report["faces"], "missed_crease_mm": r.report["missed_crease_mm"],
+             "hausdorff_mm": r.report["hausdorff_mm"]} for _, _, r in accepted]
+        return best
     raise ValueError(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): " + "; ".join(failures)
                      + ". Try another remesh.target_faces or remesh.seed")

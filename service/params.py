@@ -66,7 +66,9 @@ class RemeshParams(_Group):
     target_faces: int = Field(3000, ge=100, le=1_000_000, description="Quad faces QuadriFlow aims for "
                               "(about 3,000 on a 50k-point part: finer meshes give segment more, thinner patches).")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="QuadriFlow's seed for the first attempt.")
-    attempts: int = Field(3, ge=1, le=10, description="Seeds tried until the quad mesh passes its checks.")
+    attempts: int = Field(3, ge=1, le=10, description="Most seeds tried (seed, seed + 1, ...).")
+    candidates: int = Field(3, ge=1, le=10, description="Quad meshes that pass their checks to compare: the one "
+                            "whose edges follow the most of the input's creases (over 60°) is kept.")
     timeout_s: float = Field(300.0, ge=10, le=3600, description="Time limit of one QuadriFlow run.")
     preserve_sharp: bool = Field(True, description="Ask QuadriFlow to keep sharp edges.")
     min_cost_flow: bool = Field(False, description="QuadriFlow's min-cost-flow solver (slower, fewer singularities).")

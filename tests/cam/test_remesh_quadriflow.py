@@ -39,15 +39,47 @@ def test_remesh_box_is_checked_closed_and_on_the_surface():
     d = np.abs(np.abs(v) - [20, 15, 10]).min(axis=1)
     assert d.max() < 1e-9
     assert result.report["hausdorff_mm"] < 0.05 * np.linalg.norm([40, 30, 20])
-    assert result.report["seed"] == 0 and result.report["attempts"] == 1
+    # Three runs passed; the box's 360 mm of edges are all followed, so the nearest of them was kept.
+    assert result.report["attempts"] == 3 and [c["seed"] for c in result.report["candidates"]] == [0, 1, 2]
+    assert result.report["crease_length_mm"] == pytest.approx(360.0) and result.report["missed_crease_mm"] == 0.0
+    assert result.report["hausdorff_mm"] == min(c["hausdorff_mm"] for c in result.report["candidates"])
 
 
 def test_timeouts_are_retried_with_other_seeds_then_reported():
     mesh = _box_triangles()
     with pytest.raises(QuadriflowFailed, match="timed out"):
         run_quadriflow(mesh.vertices, mesh.faces, target_faces=300, seed=0, timeout_s=0.01)
-    with pytest.raises(ValueError, match=r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 288 faces: timed out"):
+    with pytest.raises(ValueError, match=r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 300 faces: timed out"):
         remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=5, attempts=2, timeout_s=0.01)
+
+
+def _box_with_a_corner_cut_off():
+    """A 40 × 30 × 20 mm box whose corner a slanted plane cuts off: creases that run across the box's axes."""
+    manifold3d = pytest.importorskip("manifold3d")
+    box = manifold3d.Manifold.cube([40.0, 30.0, 20.0], center=True)
+    cut = manifold3d.Manifold.cube([30.0, 30.0, 30.0], center=True).rotate([45.0, 35.264, 0.0]).translate([20, 15, 10])
+    mesh = (box - cut).to_mesh()
+    tri = trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=True)
+    return tri.subdivide().subdivide()
+
+
+def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
+    from cam.creasefollow import measure_crease_following
+
+    mesh = _box_with_a_corner_cut_off()
+    result = remesh_quads(mesh.vertices, mesh.faces, target_faces=400, seed=0, candidates=3, timeout_s=120)
+    report = result.report
+    seen = report["candidates"]
+    assert [c["seed"] for c in seen] == [0, 1, 2] and report["attempts"] == 3
+    best = min(seen, key=lambda c: (c["missed_crease_mm"], c["hausdorff_mm"]))
+    assert (report["seed"], report["faces"]) == (best["seed"], best["faces"]) == (report["seed"], len(result.faces))
+    again = measure_crease_following(result.vertices, result.faces, mesh.vertices, mesh.faces)
+    assert report["missed_crease_mm"] == again.missed_length_mm == best["missed_crease_mm"]
+    assert report["crease_length_mm"] == pytest.approx(again.crease_length_mm)
+    # One candidate is the first run that passes.
+    first = remesh_quads(mesh.vertices, mesh.faces, target_faces=400, seed=0, candidates=1, timeout_s=120)
+    assert first.report["seed"] == 0 and first.report["attempts"] == 1 and len(first.report["candidates"]) == 1
+    assert first.report["missed_crease_mm"] == seen[0]["missed_crease_mm"]
 
 
 def test_poll_stops_the_child():
@@ -69,6 +101,9 @@ def test_bad_inputs_are_named():
         remesh_quads(np.zeros((3, 3)), np.zeros((0, 3), dtype=int), target_faces=10)
     with pytest.raises(ValueError, match="vertices must be"):
         remesh_quads(np.full((3, 3), np.nan), np.array([[0, 1, 2]]), target_faces=10)
+    box = _box_triangles()
+    with pytest.raises(ValueError, match="candidates ≥ 1"):
+        remesh_quads(box.vertices, box.faces, target_faces=10, candidates=0)
 
 
 def test_boundary_loops_of_a_triangle_mesh():

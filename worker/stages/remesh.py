@@ -18,7 +18,8 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
     try:
         result = remesh_quads(
             mesh.points, mesh.faces, target_faces=int(params["target_faces"]), seed=int(params["seed"]),
-            attempts=int(params["attempts"]), timeout_s=float(params["timeout_s"]),
+            attempts=int(params["attempts"]), candidates=int(params["candidates"]),
+            timeout_s=float(params["timeout_s"]),
             preserve_sharp=bool(params["preserve_sharp"]), min_cost_flow=bool(params["min_cost_flow"]),
             max_hausdorff_ratio=float(params["max_hausdorff_ratio"]), poll=ctx.check_cancel,
             progress=lambda f, m: ctx.progress(0.05 + 0.85 * f, m),
@@ -32,7 +33,8 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
         "quads.obj": write_quad_obj(
             ctx.output("quads.obj"), result.vertices, result.faces,
             comments=[(f"cloud2cnc remesh: QuadriFlow seed {report['seed']}, {report['faces']} quads, "
-                      f"Hausdorff {report['hausdorff_mm']:.4g} mm")],
+                      f"Hausdorff {report['hausdorff_mm']:.4g} mm, {report['missed_crease_mm']:.4g} of "
+                      f"{report['crease_length_mm']:.4g} mm of creases not followed")],
         ),
         "remesh.json": write_json(ctx.output("remesh.json"), report),
     }
