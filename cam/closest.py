@@ -25,6 +25,7 @@ class MeshIndex:
     vertex_tree: cKDTree
     centroid_tree: cKDTree
     radius: float  # largest centroid-to-corner distance, mm
+    radii: np.ndarray  # float64 (m,): each triangle's centroid-to-corner distance, mm
 
 
 def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
@@ -39,9 +40,9 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
         raise ValueError(f"triangle indices must lie in 0..{len(V) - 1}, got {F.min()}..{F.max()}")
     used = np.unique(F)
     centroids = V[F].mean(axis=1)
-    radius = float(np.linalg.norm(V[F] - centroids[:, None, :], axis=2).max())
+    radii = np.linalg.norm(V[F] - centroids[:, None, :], axis=2).max(axis=1)
     return MeshIndex(vertices=V, faces=F, vertex_tree=cKDTree(V[used]), centroid_tree=cKDTree(centroids),
-                     radius=radius)
+                     radius=float(radii.max()), radii=radii)
 
 
 def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
@@ -136,29 +137,45 @@ def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
 
 def _closest_chunk(index: MeshIndex, P: np.ndarray):
     n, m = len(P), len(index.faces)
-    bound = index.vertex_tree.query(P)[0] + index.radius  # no closer triangle has its centroid farther
+    # The nearest vertex lies on the mesh, so its distance bounds the answer from above from the start.
+    best = index.vertex_tree.query(P)[0]
     result = (np.empty((n, 3)), np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros((n, 3)))
     todo = np.arange(n)
-    k = min(8, m)
+    k, seen = min(8, m), np.full(n, -1.0)
     while todo.size:
         dist, cand = index.centroid_tree.query(P[todo], k=k)
         dist, cand = dist.reshape(len(todo), -1), cand.reshape(len(todo), -1)
-        # Candidates are complete when the k-th centroid is beyond the bound (or all triangles were taken).
-        done = (dist[:, -1] > bound[todo]) | (k >= m)
-        rows = todo[done]
-        if rows.size:
-            c = cand[done]
-            kk = c.shape[1]
-            tri = index.vertices[index.faces[c.ravel()]]
-            pp = np.repeat(P[rows], kk, axis=0)
-            q, bary = closest_on_triangles(pp, tri[:, 0], tri[:, 1], tri[:, 2])
-            d = np.linalg.norm(q - pp, axis=1).reshape(len(rows), kk)
-            best = np.argmin(d, axis=1)
-            flat = np.arange(len(rows)) * kk + best
-            result[0][rows] = q[flat]
-            result[1][rows] = d[np.arange(len(rows)), best]
-            result[2][rows] = c[np.arange(len(rows)), best]
-            result[3][rows] = bary[flat]
+        fresh = dist >= seen[todo][:, None]  # nearer centroids were in the last round's set (ties may not)
+        if seen[todo[0]] < 0:
+            # First round: the nearest centroid's triangle first, so the bound below starts tight.
+            _take(index, P, result, best, todo, cand, np.arange(len(todo)), np.zeros(len(todo), dtype=np.int64))
+            fresh[:, 0] = False
+        # A triangle can be as near as `best` only if its centroid is within best plus its own radius.
+        rows, cols = np.nonzero(fresh & (dist - index.radii[cand] <= best[todo][:, None]))
+        _take(index, P, result, best, todo, cand, rows, cols)
+        # Complete when the k-th centroid is farther than the best distance plus the largest
+        # centroid-to-corner radius: no triangle not yet seen can come nearer (or all were taken).
+        done = (dist[:, -1] > best[todo] + index.radius) | (k >= m)
+        seen[todo] = dist[:, -1]
         todo = todo[~done]
         k = min(2 * k, m)
     return result
+
+
+def _take(index: MeshIndex, P: np.ndarray, result: tuple, best: np.ndarray, todo: np.ndarray, cand: np.ndarray,
+          rows: np.ndarray, cols: np.ndarray) -> None:
+    """Test the candidate triangles cand[rows, cols] of the points todo[rows]; keep each point's nearest."""
+    if not rows.size:
+        return
+    tri = index.vertices[index.faces[cand[rows, cols]]]
+    pp = P[todo[rows]]
+    q, bary = closest_on_triangles(pp, tri[:, 0], tri[:, 1], tri[:, 2])
+    d = np.linalg.norm(q - pp, axis=1)
+    order = np.lexsort((d, rows))  # by point, nearest first
+    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
+    at = todo[rows[first]]
+    better = d[first] < result[1][at]
+    at, first = at[better], first[better]
+    result[0][at], result[1][at] = q[first], d[first]
+    result[2][at], result[3][at] = cand[rows[first], cols[first]], bary[first]
+    best[at] = np.minimum(best[at], d[first])

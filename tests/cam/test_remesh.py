@@ -165,6 +165,34 @@ def test_closest_points_match_brute_force():
         assert dist[i] == pytest.approx(np.linalg.norm(q - pts[i], axis=1).min(), abs=1e-9)
 
 
+def _brute_force_distance(vertices, faces, pts):
+    corners = vertices[faces]
+    out = []
+    for p in pts:
+        q, _ = closest_on_triangles(np.repeat(p[None], len(corners), 0), corners[:, 0], corners[:, 1], corners[:, 2])
+        out.append(np.linalg.norm(q - p, axis=1).min())
+    return np.array(out)
+
+
+def test_closest_points_on_mixed_sizes_and_ties_match_brute_force():
+    # A fine grid beside one big triangle: the big one sets the largest radius, the small ones are pruned by
+    # their own; grid vertices, edge midpoints and cell centres lifted off the plane give exact ties.
+    v, f = quad_grid(12, 12, size=(12.0, 12.0))
+    tris = np.vstack([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
+    big = len(v) + np.arange(3)
+    v = np.vstack([v, [[12.0, 0.0, 0.0], [40.0, 0.0, 0.0], [12.0, 12.0, 0.0]]])
+    tris = np.vstack([tris, big[None]])
+    g = np.arange(0.0, 12.5, 0.5)
+    lattice = np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    rng = np.random.default_rng(4)
+    pts = np.vstack([np.c_[lattice, np.full(len(lattice), 0.3)], np.c_[lattice, np.zeros(len(lattice))],
+                     rng.uniform([-2, -2, -3], [42, 14, 3], size=(300, 3))])
+    closest, dist, tri, bary = closest_points(mesh_index(v, tris), pts)
+    np.testing.assert_allclose(dist, np.linalg.norm(pts - closest, axis=1), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(closest, np.einsum("nk,nkj->nj", bary, v[tris[tri]]), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(dist, _brute_force_distance(v, tris, pts), rtol=0, atol=1e-12)
+
+
 def test_closest_point_on_a_degenerate_triangle():
     a = np.array([[0.0, 0, 0]])
     b = np.array([[0.0, 0, 0]])
