@@ -1,9 +1,11 @@
 """Exact closest points on a triangle mesh: projections, Hausdorff distances and every fit error.
 
 A k-d tree on triangle centroids proposes candidates; a candidate set is only
-accepted once it provably holds the closest triangle (every triangle farther
-than the nearest-vertex distance plus the largest centroid-to-corner radius is
-excluded), so the answer is exact, not a nearest-vertex approximation.
+accepted once it provably holds the closest triangle (every triangle whose
+centroid lies farther than the best distance found plus the largest
+centroid-to-corner radius is excluded), so the answer is exact, not a
+nearest-vertex approximation. Within a set, a triangle is tested only when its
+centroid lies within the best distance so far plus its own radius.
 """
 
 from __future__ import annotations
