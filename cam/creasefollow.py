@@ -4,8 +4,8 @@ Segment puts patch borders on sharp quad edges, and a bicubic patch cannot bend
 round a crease that runs through it: a crease of the input that no quad edge
 follows ends up inside a patch, and the fit misses it there by up to the quad
 size times the crease's turn. QuadriFlow's ``-sharp`` follows most creases, but
-how many depends on its seed (on Fandisk ×10 at 3,000 quads, from 25 to 190 mm
-of its 669 mm missed), so :func:`cam.remesh.remesh_quads` measures each layout
+how many depends on its seed (on Fandisk ×10 at 3,000 quads, seeds 0, 1 and 2
+miss 193, 27 and 110 mm of its 669 mm), so :func:`cam.remesh.remesh_quads` measures each layout
 with :func:`measure_crease_following` and keeps the one that misses least.
 """
 
