@@ -143,15 +143,15 @@ def _closest_chunk(index: MeshIndex, P: np.ndarray):
     best = index.vertex_tree.query(P)[0]
     result = (np.empty((n, 3)), np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros((n, 3)))
     todo = np.arange(n)
-    k, seen = min(8, m), np.full(n, -1.0)
+    k, seen, first_round = min(8, m), np.zeros(n), True
     while todo.size:
         dist, cand = index.centroid_tree.query(P[todo], k=k)
         dist, cand = dist.reshape(len(todo), -1), cand.reshape(len(todo), -1)
         fresh = dist >= seen[todo][:, None]  # nearer centroids were in the last round's set (ties may not)
-        if seen[todo[0]] < 0:
-            # First round: the nearest centroid's triangle first, so the bound below starts tight.
+        if first_round:
+            # The nearest centroid's triangle first, so the bound below starts tight.
             _take(index, P, result, best, todo, cand, np.arange(len(todo)), np.zeros(len(todo), dtype=np.int64))
-            fresh[:, 0] = False
+            fresh[:, 0], first_round = False, False
         # A triangle can be as near as `best` only if its centroid is within best plus its own radius.
         rows, cols = np.nonzero(fresh & (dist - index.radii[cand] <= best[todo][:, None]))
         _take(index, P, result, best, todo, cand, rows, cols)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cam.fit.crease import mesh_creases
+
 __all__ = ["CreaseFollowing", "measure_crease_following"]
 
 # Points per crease edge: each stands for a quarter of the edge, so a crease half followed counts half.
@@ -83,7 +85,8 @@ def measure_crease_following(
     if not 0 < crease_angle_deg < 180 or not 0 < max_turn_deg < 90 or tolerance_ratio <= 0:
         raise ValueError(f"need 0 < crease_angle_deg < 180, 0 < max_turn_deg < 90 and tolerance_ratio > 0; got "
                          f"{crease_angle_deg}, {max_turn_deg}, {tolerance_ratio}")
-    a, b = _creases(tv, tf, crease_angle_deg)
+    creases = mesh_creases(tv, tf, angle_deg=crease_angle_deg)
+    a, b = creases.a, creases.b
     qe = np.sort(np.stack([qf, np.roll(qf, -1, axis=1)], axis=-1).reshape(-1, 2), axis=1)
     qe = np.unique(qe, axis=0)
     p, q = qv[qe[:, 0]], qv[qe[:, 1]]
@@ -108,12 +111,3 @@ def measure_crease_following(
     followed = ((dist <= tolerance) & aligned).any(axis=1)
     return CreaseFollowing(float(seg.sum()), float(weight[~followed].sum()), tolerance)
 
-
-def _creases(vertices: np.ndarray, triangles: np.ndarray, angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """End points (k, 3) of the edges whose two faces turn by more than `angle_deg`."""
-    import trimesh
-
-    mesh = trimesh.Trimesh(vertices, triangles, process=False)
-    sharp = mesh.face_adjacency_angles > np.radians(angle_deg)
-    edges = mesh.face_adjacency_edges[sharp]
-    return vertices[edges[:, 0]], vertices[edges[:, 1]]

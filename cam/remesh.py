@@ -289,7 +289,7 @@ def remesh_quads(
         raise ValueError("the mesh has zero extent")
     loops = boundary_loop_count(tris, len(verts))
     failures: list[str] = []
-    accepted: list[tuple[tuple[float, float], int, RemeshResult]] = []
+    accepted: list[RemeshResult] = []
     # After the plain attempts, one more at a quarter of the faces may split every face into quads to close
     # triangular holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
     for attempt in range(attempts + 1):
@@ -318,23 +318,20 @@ def remesh_quads(
         report = {
             "seed": run_seed, "attempts": attempt + 1, "quadriflow_target_faces": run_target,
             "split": any("split every face" in r for r in facts["repairs"]),
-            "failed_attempts": list(failures),
             "target_faces": int(target_faces), "faces": len(out_f), "vertices": len(out_v),
             "input_triangles": len(tris), "input_boundary_loops": loops, "quadriflow_s": quadriflow_s,
             "total_s": time.monotonic() - started, **facts, **creases.as_dict(),
         }
-        accepted.append(((creases.missed_length_mm, facts["hausdorff_mm"]), attempt,
-                         RemeshResult(vertices=out_v, faces=out_f, report=report)))
+        accepted.append(RemeshResult(vertices=out_v, faces=out_f, report=report))
         if len(accepted) >= candidates:
             break
     if accepted:
         # The layout whose edges follow most of the input's creases; the closer one on a tie.
-        best = min(accepted, key=lambda item: (item[0], item[1]))[2]
-        best.report["attempts"] = accepted[-1][1] + 1
+        best = min(accepted, key=lambda r: (r.report["missed_crease_mm"], r.report["hausdorff_mm"]))
+        best.report["attempts"] = accepted[-1].report["attempts"]
         best.report["failed_attempts"] = failures
-        best.report["candidates"] = [
-            {"seed": r.report["seed"], "faces": r.report["faces"], "missed_crease_mm": r.report["missed_crease_mm"],
-             "hausdorff_mm": r.report["hausdorff_mm"]} for _, _, r in accepted]
+        keys = ("seed", "faces", "missed_crease_mm", "hausdorff_mm")
+        best.report["candidates"] = [{key: r.report[key] for key in keys} for r in accepted]
         return best
     raise ValueError(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): " + "; ".join(failures)
                      + ". Try another remesh.target_faces or remesh.seed")
