@@ -37,6 +37,8 @@ from cam.quadmesh import face_areas, face_normals
 __all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]
 
 _POLL_S = 0.25
+# Face-count nudges of attempt i, once a run has failed (QuadriFlow's holes and hangs depend on the exact sampling).
+_TARGET_NUDGE = (0.0, -0.04, 0.04, -0.08, 0.08)
 
 
 class QuadriflowFailed(RuntimeError):
@@ -243,7 +245,11 @@ def remesh_quads(
     target_faces
         Quads to aim for, ≥ 1.
     seed
-        Seed of the first attempt; attempt ``i`` uses ``seed + i``.
+        Seed of the first attempt; attempt ``i`` uses ``seed + i``. Once a run
+        has failed, later ones also take a face count a few percent off the
+        target (QuadriFlow's rare hangs and holes depend on the exact sampling);
+        until then every run is at the target, so the layouts compared are of
+        one density.
     attempts
         Most QuadriFlow runs, ≥ 1. When none passed and some failed on
         triangular holes that cannot be paired, one more run at a quarter of the
@@ -297,6 +303,8 @@ def remesh_quads(
         if split and (accepted or not any("triangular holes" in f for f in failures)):
             break
         run_seed, run_target = seed + attempt, int(target_faces)
+        if failures:
+            run_target = max(1, round(target_faces * (1.0 + _TARGET_NUDGE[attempt % len(_TARGET_NUDGE)])))
         if split:
             run_seed, run_target = seed, max(1, round(target_faces / 4))
         if progress is not None:

@@ -45,11 +45,11 @@ def test_remesh_box_is_checked_closed_and_on_the_surface():
     assert result.report["hausdorff_mm"] == min(c["hausdorff_mm"] for c in result.report["candidates"])
 
 
-def test_timeouts_are_retried_with_other_seeds_then_reported():
+def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
     mesh = _box_triangles()
     with pytest.raises(QuadriflowFailed, match="timed out"):
         run_quadriflow(mesh.vertices, mesh.faces, target_faces=300, seed=0, timeout_s=0.01)
-    with pytest.raises(ValueError, match=r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 300 faces: timed out"):
+    with pytest.raises(ValueError, match=r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 288 faces: timed out"):
         remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=5, attempts=2, timeout_s=0.01)
 
 
