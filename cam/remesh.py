@@ -259,7 +259,8 @@ def remesh_quads(
         Runs that pass the checks to compare, ≥ 1: attempts stop once this many
         passed, and of those the one whose edges follow the most crease length
         of the input is kept (the nearer one, by Hausdorff distance, on a tie).
-        The report lists them under ``"candidates"``.
+        The report lists them under ``"candidates"`` (seed, QuadriFlow's target, faces,
+        missed crease length, Hausdorff distance).
     timeout_s
         Limit of one run, seconds.
     preserve_sharp
@@ -338,7 +339,7 @@ def remesh_quads(
         best = min(accepted, key=lambda r: (r.report["missed_crease_mm"], r.report["hausdorff_mm"]))
         best.report["attempts"] = accepted[-1].report["attempts"]
         best.report["failed_attempts"] = failures
-        keys = ("seed", "faces", "missed_crease_mm", "hausdorff_mm")
+        keys = ("seed", "quadriflow_target_faces", "faces", "missed_crease_mm", "hausdorff_mm")
         best.report["candidates"] = [{key: r.report[key] for key in keys} for r in accepted]
         return best
     raise ValueError(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): " + "; ".join(failures)

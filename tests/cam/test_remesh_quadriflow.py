@@ -41,6 +41,8 @@ def test_remesh_box_is_checked_closed_and_on_the_surface():
     assert result.report["hausdorff_mm"] < 0.05 * np.linalg.norm([40, 30, 20])
     # Three runs passed; the box's 360 mm of edges are all followed, so the nearest of them was kept.
     assert result.report["attempts"] == 3 and [c["seed"] for c in result.report["candidates"]] == [0, 1, 2]
+    # No run failed, so every run was at the target itself: the layouts compared are of one density.
+    assert [c["quadriflow_target_faces"] for c in result.report["candidates"]] == [300, 300, 300]
     assert result.report["crease_length_mm"] == pytest.approx(360.0) and result.report["missed_crease_mm"] == 0.0
     assert result.report["hausdorff_mm"] == min(c["hausdorff_mm"] for c in result.report["candidates"])
 
