@@ -55,7 +55,8 @@ def job_params() -> dict:
         return {}
 
 
-def bench_mesh(name: str, data: Path, work: Path) -> dict:
+def bench_mesh(name: str, data: Path, work: Path, params: dict | None = None) -> dict:
+    """remesh → segment → fit on `name` ×10 with `params` (a JobParams dump; the defaults when None)."""
     from cam.io import read_obj, write_ply_mesh
     from worker.stages.fit import run_fit
     from worker.stages.remesh import run_remesh
@@ -63,7 +64,7 @@ def bench_mesh(name: str, data: Path, work: Path) -> dict:
 
     raw = read_obj(data / f"{name}.obj")
     mesh_ply = write_ply_mesh(work / "mesh.ply", raw.points * 10.0, raw.faces)
-    params = job_params()
+    params = job_params() if params is None else params
     remesh_out, t_remesh = run_stage(run_remesh, "remesh", work, {"mesh.ply": mesh_ply}, params)
     seg_out, t_seg = run_stage(run_segment, "segment", work, {"quads.obj": remesh_out["quads.obj"]}, params)
     fit_out, t_fit = run_stage(run_fit, "fit", work, {"quads.obj": remesh_out["quads.obj"],
@@ -71,7 +72,8 @@ def bench_mesh(name: str, data: Path, work: Path) -> dict:
                                params)
     doc = json.loads(Path(fit_out["surfaces.json"]).read_text())
     return {"name": name, "doc": doc, "times": (t_remesh, t_seg, t_fit), "mesh": (raw.points * 10.0, raw.faces),
-            "igs": Path(fit_out["surfaces.igs"]).stat().st_size}
+            "igs": Path(fit_out["surfaces.igs"]).stat().st_size,
+            "remesh": json.loads(Path(remesh_out["remesh.json"]).read_text())}
 
 
 def sampled_distances(doc: dict, mesh: tuple[np.ndarray, np.ndarray], n: int = 25) -> list[np.ndarray]:

@@ -62,28 +62,16 @@ def apply_overrides(params: dict, overrides: dict[str, str]) -> dict:
 
 
 def run_one(mesh: str, overrides: dict[str, str], data: Path, work: Path) -> dict:
-    """remesh → segment → fit on one mesh ×10 with the overrides; the row's figures."""
-    from fit import job_params, run_stage
+    """remesh → segment → fit on one mesh ×10 with the overrides (`bench/fit.py`'s run); the row's figures."""
+    from fit import bench_mesh, job_params
 
-    from cam.io import read_obj, write_ply_mesh
-    from worker.stages.fit import run_fit
-    from worker.stages.remesh import run_remesh
-    from worker.stages.segment import run_segment
-
-    raw = read_obj(data / f"{mesh}.obj")
-    mesh_ply = write_ply_mesh(work / "mesh.ply", raw.points * 10.0, raw.faces)
-    params = apply_overrides(job_params(), overrides)
-    ro, t_remesh = run_stage(run_remesh, "remesh", work, {"mesh.ply": mesh_ply}, params)
-    report = json.loads((work / "remesh" / "remesh.json").read_text())
-    so, _ = run_stage(run_segment, "segment", work, {"quads.obj": ro["quads.obj"]}, params)
-    fo, t_fit = run_stage(run_fit, "fit", work, {"quads.obj": ro["quads.obj"], "patches.json": so["patches.json"],
-                                                 "mesh.ply": mesh_ply}, params)
-    doc = json.loads(Path(fo["surfaces.json"]).read_text())
+    run = bench_mesh(mesh, data, work, apply_overrides(job_params(), overrides))
+    report, doc = run["remesh"], run["doc"]
     errors = [s["max_error_mm"] for s in doc["surfaces"]]
     return {"quads": report["faces"], "seed": report["seed"], "missed_crease_mm": report.get("missed_crease_mm"),
             "crease_length_mm": report.get("crease_length_mm"), "hausdorff_mm": report["hausdorff_mm"],
             "patches": len(errors), "over": len(doc["over_tolerance"]), "sum_mm": sum(errors), "worst_mm": max(errors),
-            "remesh_s": t_remesh, "fit_s": t_fit}
+            "remesh_s": run["times"][0], "fit_s": run["times"][2]}
 
 
 def _child(argv: list[str]) -> int:
