@@ -297,12 +297,14 @@ def remesh_quads(
     loops = boundary_loop_count(tris, len(verts))
     failures: list[str] = []
     accepted: list[RemeshResult] = []
+    runs = 0
     # After the plain attempts, one more at a quarter of the faces may split every face into quads to close
     # triangular holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
     for attempt in range(attempts + 1):
         split = attempt == attempts
         if split and (accepted or not any("triangular holes" in f for f in failures)):
             break
+        runs = attempt + 1
         run_seed, run_target = seed + attempt, int(target_faces)
         if failures:
             run_target = max(1, round(target_faces * (1.0 + _TARGET_NUDGE[attempt % len(_TARGET_NUDGE)])))
@@ -337,7 +339,7 @@ def remesh_quads(
     if accepted:
         # The layout whose edges follow most of the input's creases; the closer one on a tie.
         best = min(accepted, key=lambda r: (r.report["missed_crease_mm"], r.report["hausdorff_mm"]))
-        best.report["attempts"] = accepted[-1].report["attempts"]
+        best.report["attempts"] = runs  # failed runs after the last that passed count too
         best.report["failed_attempts"] = failures
         keys = ("seed", "quadriflow_target_faces", "faces", "missed_crease_mm", "hausdorff_mm")
         best.report["candidates"] = [{key: r.report[key] for key in keys} for r in accepted]

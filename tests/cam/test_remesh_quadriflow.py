@@ -55,6 +55,27 @@ def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
         remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=5, attempts=2, timeout_s=0.01)
 
 
+def test_the_report_counts_every_run_and_the_failed_ones(monkeypatch):
+    # Runs that fail after one passed are runs too: attempts counts them, failed_attempts names them.
+    import cam.remesh as remesh
+
+    real = remesh.run_quadriflow
+
+    def flaky(vertices, triangles, *, seed, **kw):
+        if seed > 0:
+            raise QuadriflowFailed("timed out after 0 s")
+        return real(vertices, triangles, seed=seed, **kw)
+
+    monkeypatch.setattr(remesh, "run_quadriflow", flaky)
+    mesh = _box_triangles()
+    result = remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=0, attempts=3, timeout_s=120)
+    assert result.report["seed"] == 0 and [c["seed"] for c in result.report["candidates"]] == [0]
+    assert result.report["attempts"] == 3
+    # The first failure ran at the target; the run after it at a nudged count.
+    assert result.report["failed_attempts"] == ["seed 1, 300 faces: timed out after 0 s",
+                                                "seed 2, 312 faces: timed out after 0 s"]
+
+
 def _box_with_a_corner_cut_off():
     """A 40 × 30 × 20 mm box whose corner a slanted plane cuts off: creases that run across the box's axes."""
     manifold3d = pytest.importorskip("manifold3d")
