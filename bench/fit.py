@@ -78,8 +78,8 @@ def bench_mesh(name: str, data: Path, work: Path, params: dict | None = None) ->
 
 def sampled_distances(doc: dict, mesh: tuple[np.ndarray, np.ndarray], n: int = 25) -> list[np.ndarray]:
     """Per surface, the distance (mm) to the mesh on an n x n grid of parameters."""
-    from cam.bspline import surface_from_json
-    from cam.closest import closest_points, mesh_index
+    from cam.spline.surface import surface_from_json
+    from cam.mesh.closest import closest_points, mesh_index
 
     index = mesh_index(*mesh)
     t = np.linspace(0, 1, n)
@@ -104,7 +104,7 @@ def render(path: Path, doc: dict, distances: list[np.ndarray], title: str, vmax:
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from cam.bspline import surface_from_json
+    from cam.spline.surface import surface_from_json
 
     polys, values = [], []
     for entry, d in zip(doc["surfaces"], distances):

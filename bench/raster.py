@@ -23,9 +23,9 @@ from matplotlib.path import Path as Polygon
 from opencamlib import ocl
 
 from cam.gcode import parse_program, write_program
-from cam.toolpath.geometry import Patch, frame
-from cam.toolpath.link import link_passes
-from cam.toolpath.scallop import flat_spacing
+from cam.spline.geometry import Patch, frame
+from cam.plan.link import link_passes
+from cam.plan.scallop import flat_spacing
 from cam.verify import measure_program
 from cam.verify.measure import _grid as sample_grid  # the same spacing rule verify samples with
 

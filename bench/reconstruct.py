@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from cam.closest import closest_on_triangles  # noqa: E402  (after the path is set)
+from cam.mesh.closest import closest_on_triangles  # noqa: E402  (after the path is set)
 
 DATA = ROOT.parent / "shared" / "data"
 SHARP_DEG = 30.0

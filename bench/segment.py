@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cam.io import read_obj, read_ply
-from cam.quadmesh import face_normals, quad_topology
-from cam.remesh import remesh_quads
+from cam.mesh.quads import face_normals, quad_topology
+from cam.remesh.quadriflow import remesh_quads
 from cam.segment import segment_quads
 
 #: QuadriFlow's face-count targets that land in 3,000-3,500 quads for these meshes (it undershoots Fandisk).

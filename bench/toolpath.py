@@ -25,12 +25,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from machine_info import describe_machine  # bench/ is on the path when a script runs  # noqa: I001
 
 from cam.gcode import parse_program, write_program
-from cam.toolpath import analytic
-from cam.toolpath.access import Setup, machine_patches
-from cam.toolpath.geometry import Patch, orientation_signs
-from cam.toolpath.plan import plan_job
-from cam.toolpath.region import area_share, sub_surface, surface_area
-from cam.toolpath.scallop import flat_spacing
+from cam.spline import analytic
+from cam.plan.access import Setup, machine_patches
+from cam.spline.geometry import Patch, orientation_signs
+from cam.plan.plan import plan_job
+from cam.plan.region import area_share, sub_surface, surface_area
+from cam.plan.scallop import flat_spacing
 from cam.verify import measure_program
 from raster import matched_raster
 

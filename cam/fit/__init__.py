@@ -7,7 +7,7 @@ grid), `param` (samples, seed parameters, foot points, anchors), `solve` (the sq
 the curves carrying them), `curve` (fitting one boundary curve), `crease` (moving sharp
 borders onto the mesh's creases), `measure` (a surface's worst distances from the mesh, searched for),
 `refine` (knot insertion where the error stays high),
-`patches` (the whole fit). Distances to the mesh come from `cam.closest`.
+`patches` (the whole fit). Distances to the mesh come from `cam.mesh.closest`.
 """
 
 from cam.fit.grid import orient_grid, patch_grid

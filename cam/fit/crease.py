@@ -149,7 +149,7 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
     nearer to it than to its sharp neighbours.
     Every other vertex goes to its closest mesh point.
     """
-    from cam.closest import closest_points
+    from cam.mesh.closest import closest_points
 
     V = np.asarray(vertices, dtype=np.float64)
     used = np.unique(np.concatenate([np.asarray(g).ravel() for g in grids]))

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from cam.fit.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
+from cam.spline.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
 from cam.fit.refine import split_spans
 
 __all__ = ["CurveFit", "fit_curve", "turns_back"]

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import maximum_filter
 
-from cam.closest import MeshIndex, closest_points
-from cam.fit.basis import evaluate_surface, span_params
+from cam.mesh.closest import MeshIndex, closest_points
+from cam.spline.basis import evaluate_surface, span_params
 
 __all__ = ["surface_peaks"]
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
-from cam.fit.basis import evaluate_surface, span_params
-from cam.closest import closest_points, mesh_index
+from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
+from cam.spline.basis import evaluate_surface, span_params
+from cam.mesh.closest import closest_points, mesh_index
 
 __all__ = ["mesh_samples", "Assignment", "assign_samples", "project_points", "FootFrame", "foot_frames",
            "distance_to_surface", "Anchors", "grid_anchors"]
@@ -110,7 +110,7 @@ def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.
 
     Returns u, v float64 (n,) and distance float64 (n,) mm. A step that does not shorten the
     distance is halved (twice), then dropped, so the distance never grows. Across C0 knot lines
-    see `cam.bspline.foot_in_pieces`.
+    see `cam.spline.surface.foot_in_pieces`.
     """
     p, q = degree
     ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
@@ -374,7 +374,7 @@ def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, spacing: floa
     remesher's vertex-to-vertex irregularity is not forced on the fit while its overall
     layout is kept (and an exact grid stays exact).
     """
-    from cam.fit.basis import surface_matrix
+    from cam.spline.basis import surface_matrix
 
     g = np.asarray(grid, dtype=np.int64)
     G = np.asarray(vertices, dtype=np.float64)[g]

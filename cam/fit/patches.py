@@ -20,13 +20,13 @@ from typing import Callable
 
 import numpy as np
 
-from cam.bspline import FOLD_CHECK_SAMPLES, BSplineSurface, find_folds, make_bspline_surface
-from cam.fit.basis import evaluate_surface
+from cam.spline.surface import FOLD_CHECK_SAMPLES, BSplineSurface, find_folds, make_bspline_surface
+from cam.spline.basis import evaluate_surface
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
-from cam.closest import closest_points, mesh_index, triangle_normals
+from cam.mesh.closest import closest_points, mesh_index, triangle_normals
 from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
 from cam.fit.curve import CurveFit, fit_curve
-from cam.fit.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
+from cam.spline.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
 from cam.fit.measure import surface_peaks
 from cam.fit.param import assign_samples, distance_to_surface, grid_anchors, mesh_samples
 from cam.fit.refine import Refined, fit_refined
@@ -43,7 +43,7 @@ class PatchFit:
     (a sample beyond the border counts against the nearest neighbour), max_error_mm also
     covers surface_to_mesh_mm: the largest distance from points of the surface to the mesh;
     boundary_error_mm: the largest distance of its boundary curves from the mesh (along a crease, from the crease);
-    folded_fraction: share of the surface that folds over itself (`cam.bspline.find_folds` on the grid the
+    folded_fraction: share of the surface that folds over itself (`cam.spline.surface.find_folds` on the grid the
     planner checks, `FOLD_CHECK_SAMPLES`; 0 for a regular patch), reported because a fold can hug the mesh
     and still pass the distance test.
     worst_point_mm float64 (3,): where max_error_mm is (the mesh sample, or the point of the surface);
@@ -484,7 +484,7 @@ def _side_curve(pieces, curves: list[CurveFit]) -> tuple[np.ndarray, np.ndarray]
 
 def _constrained_start(k: int, layout: Layout, free: SurfaceFit, curves):
     """Knots merged from the free fit and the four border curves; the free net refined into them, border replaced."""
-    from cam.fit.knots import refine_surface
+    from cam.spline.knots import refine_surface
 
     side = {name: _side_curve(layout.sides[(k, name)], curves) for name in SIDES}
     ku = merge_knots(free.knots_u, side["v0"][0], side["v1"][0])

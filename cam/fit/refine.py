@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.fit.basis import find_spans
-from cam.fit.knots import refine_surface
+from cam.spline.basis import find_spans
+from cam.spline.knots import refine_surface
 from cam.fit.measure import surface_peaks
 from cam.fit.solve import SurfaceFit, fit_surface
 

@@ -34,7 +34,7 @@ def write_iges(path: str | os.PathLike[str], surfaces: Sequence, *, labels: Sequ
                created: datetime | None = None, author: str = "cloud2cnc", organization: str = "",
                product: str = "cloud2cnc surfaces") -> Path:
     """Write `surfaces` (objects with degree, knots_u, knots_v, control_points (nu, nv, 3) in mm, like
-    `cam.bspline.BSplineSurface`) to `path` atomically; see `iges_bytes`."""
+    `cam.spline.surface.BSplineSurface`) to `path` atomically; see `iges_bytes`."""
     data = iges_bytes(surfaces, labels=labels, created=created, author=author, organization=organization,
                       product=product, filename=Path(path).name)
     return atomic_write(path, [data])

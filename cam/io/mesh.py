@@ -13,7 +13,7 @@ from cam.io.errors import ReadError
 from cam.io.formats import sniff_format
 from cam.io.polygons import fan_triangulate
 from cam.io.records import InputData
-from cam.rows import first_occurrences
+from cam.mesh.rows import first_occurrences
 
 __all__ = ["read_obj", "read_stl"]
 

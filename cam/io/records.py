@@ -17,7 +17,7 @@ class InputData:
     ----------
     points
         float64 (n, 3): point or vertex coordinates. Non-finite rows are kept;
-        :func:`cam.ingest.clean_cloud` drops and counts them.
+        :func:`cam.ingest.clean.clean_cloud` drops and counts them.
     normals
         float64 (n, 3) or None: per-point normals as stored (not normalised).
     colors

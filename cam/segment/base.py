@@ -30,7 +30,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from cam.quadmesh import QuadTopology
+from cam.mesh.quads import QuadTopology
 
 __all__ = ["SetupBase", "find_setup_base", "setup_transform", "spherical_kmeans"]
 

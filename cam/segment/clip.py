@@ -28,7 +28,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from cam.quadmesh import QuadTopology, prev_he, vertex_fans
+from cam.mesh.quads import QuadTopology, prev_he, vertex_fans
 from cam.segment.traces import Trace, trace_line
 
 __all__ = ["CutState", "complete_cuts", "cut_open_cylinders"]

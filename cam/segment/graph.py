@@ -33,7 +33,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from cam.quadmesh import QuadTopology
+from cam.mesh.quads import QuadTopology
 from cam.segment.traces import trace_line
 
 __all__ = ["ConnectionGraph", "GraphEdge", "build_connection_graph", "kruskal"]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cam.quadmesh import QuadTopology, vertex_fans
+from cam.mesh.quads import QuadTopology, vertex_fans
 
 __all__ = ["motorcycle_cuts"]
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.quadmesh import QuadTopology
+from cam.mesh.quads import QuadTopology
 
 __all__ = ["PatchGrid", "grid_of_patch"]
 

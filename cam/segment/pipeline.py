@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.quadmesh import face_areas, face_normals, quad_topology
+from cam.mesh.quads import face_areas, face_normals, quad_topology
 from cam.segment.base import SetupBase, find_setup_base
 from cam.segment.clip import CutState, complete_cuts, cut_open_cylinders, patch_labels
 from cam.segment.graph import build_connection_graph

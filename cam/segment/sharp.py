@@ -17,7 +17,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from cam.quadmesh import QuadTopology
+from cam.mesh.quads import QuadTopology
 
 __all__ = ["SharpFeatures", "chain_edges", "find_sharp_edges"]
 

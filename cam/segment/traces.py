@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.quadmesh import QuadTopology
+from cam.mesh.quads import QuadTopology
 
 __all__ = ["Trace", "straight_continuation", "trace_line"]
 

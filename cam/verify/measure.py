@@ -19,9 +19,9 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
-from cam.bspline import flipped_normals
+from cam.spline.surface import flipped_normals
 from cam.gcode.parser import ParsedProgram
-from cam.toolpath.geometry import Patch
+from cam.spline.geometry import Patch
 from cam.verify.sweep import Sweep
 
 __all__ = ["Measurement", "heat_colors", "measure_program"]

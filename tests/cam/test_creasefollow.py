@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.creasefollow import measure_crease_following
-from cam.quadshapes import quad_box, quad_grid
+from cam.remesh.creases import measure_crease_following
+from tests.quadshapes import quad_box, quad_grid
 
 
 def test_a_box_remeshed_on_its_own_edges_follows_every_crease():

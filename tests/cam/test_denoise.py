@@ -1,4 +1,4 @@
-"""Tests for cam.denoise (MeshTGV normal filtering + vertex update).
+"""Tests for cam.denoise.mesh_tgv (MeshTGV normal filtering + vertex update).
 
 Shapes are made here; the one test on the shared Fandisk mesh skips when ../shared/data is absent.
 """
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.denoise import PARAMETER_BOUNDS, DenoiseCanceled, DenoiseResult, denoise_mesh
+from cam.denoise.mesh_tgv import PARAMETER_BOUNDS, DenoiseCanceled, DenoiseResult, denoise_mesh
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 

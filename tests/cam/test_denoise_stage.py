@@ -1,4 +1,4 @@
-"""The `denoise` stage around cam.denoise: files, the enabled switch, cancel, errors, and params bounds."""
+"""The `denoise` stage around cam.denoise.mesh_tgv: files, the enabled switch, cancel, errors, and params bounds."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pydantic
 import pytest
 import trimesh
 
-from cam.denoise import PARAMETER_BOUNDS
+from cam.denoise.mesh_tgv import PARAMETER_BOUNDS
 from cam.io import read_ply, write_ply_mesh
 from service.params import DenoiseParams, JobParams
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.bspline import clamped_uniform_knots, make_bspline_surface
-from cam.fit.basis import evaluate_curve, evaluate_surface, gram_matrix, surface_matrix, thin_plate_matrix
-from cam.closest import closest_on_triangles, closest_points, mesh_index
-from cam.fit.knots import (insert_knot, join_curves, merge_knots, refine_knots, refine_surface, reverse_curve,
+from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
+from cam.spline.basis import evaluate_curve, evaluate_surface, gram_matrix, surface_matrix, thin_plate_matrix
+from cam.mesh.closest import closest_on_triangles, closest_points, mesh_index
+from cam.spline.knots import (insert_knot, join_curves, merge_knots, refine_knots, refine_surface, reverse_curve,
                            split_curve, sub_curve)
 from cam.fit.refine import split_spans
 
@@ -138,7 +138,7 @@ def _bent_sheet():
 def test_piece_boxes_bound_the_distance_to_the_piece():
     # Against the nearest of 201 x 201 samples of each piece (which is at least the true distance):
     # the bound never exceeds it, it is zero for points on the piece, and it prunes far points.
-    from cam.bspline import c0_pieces, make_piece_boxes
+    from cam.spline.surface import c0_pieces, make_piece_boxes
 
     ku, kv, cp = _bent_sheet()
     rng = np.random.default_rng(5)
@@ -160,7 +160,7 @@ def test_piece_boxes_bound_the_distance_to_the_piece():
 
 def test_foot_points_with_the_piece_bound_match_those_without():
     # The bound only skips runs that cannot win: every foot and distance is the same as trying all.
-    from cam.bspline import c0_pieces, foot_in_pieces, make_piece_boxes
+    from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes
     from cam.fit.param import _newton
 
     ku, kv, cp = _bent_sheet()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from cam.closest import mesh_index
+from cam.mesh.closest import mesh_index
 from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cam.fit.curve import fit_curve, turns_back
-from cam.fit.knots import lattice_knots
+from cam.spline.knots import lattice_knots
 
 ENDS = [(0.0, np.zeros(3)), (10.0, np.array([10.0, 0.0, 0.0]))]
 
@@ -27,7 +27,7 @@ def test_zig_zag_data_do_not_make_the_curve_turn_back():
                     smoothing_mm2=1e-8)
     assert not turns_back(fit.knots, fit.control_points)
     # The ends stay exact whatever the smoothing became.
-    from cam.fit.basis import evaluate_curve
+    from cam.spline.basis import evaluate_curve
 
     ends = evaluate_curve(fit.knots, fit.control_points, np.array([0.0, 10.0]))[0]
     np.testing.assert_allclose(ends, [[0, 0, 0], [10, 0, 0]], atol=1e-9)
@@ -58,7 +58,7 @@ def test_data_off_the_surface_are_replaced_at_their_own_parameter():
 
     fit = fit_curve(P, t, knots=lattice_knots(0, 10, 2.0), constraints=ENDS, length_mm=10.0, tolerance_mm=1e-6,
                     closest=closest, project=on_axis)
-    from cam.fit.basis import evaluate_curve
+    from cam.spline.basis import evaluate_curve
 
     s = np.linspace(0, 10, 201)
     np.testing.assert_allclose(evaluate_curve(fit.knots, fit.control_points, s)[0], on_axis(s), atol=1e-6)
@@ -83,7 +83,7 @@ def test_two_borders_apart_on_a_cylinder_are_averaged_on_it():
         normal = np.concatenate([np.zeros((len(q), 1)), q[:, 1:] / r], 1)
         return feet, normal
 
-    from cam.fit.basis import evaluate_curve
+    from cam.spline.basis import evaluate_curve
 
     kw = dict(knots=lattice_knots(0, 10, 2.0), constraints=ends, length_mm=10.0, tolerance_mm=tol, closest=closest)
     assert fit_curve(P, h, surface_weight=0.0, **kw).max_error > 0.02
@@ -101,7 +101,7 @@ def test_a_curve_along_a_crease_follows_it_not_just_the_faces_beside_it():
     # way a mesh creases a round edge), and a mesh that is that plane: a curve cutting the polygon's
     # corners is on the mesh everywhere, 0.068 mm off the crease. Given which data are the crease,
     # the curve's distance from them counts, and refinement brings it within.
-    from cam.fit.basis import evaluate_curve
+    from cam.spline.basis import evaluate_curve
 
     n, tol = 6, 0.05
     a = np.linspace(0, np.pi / 2, n + 1)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from cam.bspline import surface_from_json
+from cam.spline.surface import surface_from_json
 from cam.io import write_ply_mesh
 from tests.cam.test_fit_shapes import case, cylinder, quads_of, ridge
 from worker.context import StageContext, StageError

@@ -7,7 +7,7 @@ import pytest
 
 from cam.fit.boundary import side_params
 from cam.fit.patches import fit_patches
-from cam.closest import closest_points, mesh_index
+from cam.mesh.closest import closest_points, mesh_index
 from tests.cam.test_fit_shapes import bump, case, cylinder, paraboloid, poly, ridge, triangle_mesh
 
 # Exact data only: the vertices of the mesh lie on the polynomial, its faces (the mesh terms, samples
@@ -234,7 +234,7 @@ def test_a_patch_one_quad_wide_is_within_tolerance_between_its_lattice_points():
     # The same bump, measured as fit_patches reports a surface: everywhere on it, here on a dense grid
     # against the mesh, not only at the lattice's points. It was 0.66 mm off between them: the lattice
     # fell on the knots of the split spans, and the first split (2 % better) ended the refinement.
-    from cam.fit.basis import evaluate_surface
+    from cam.spline.basis import evaluate_surface
 
     index, done = _bump_behind_flat_borders()
     g = np.linspace(0.0, 1.0, 401)
@@ -247,7 +247,7 @@ def test_a_patch_one_quad_wide_is_within_tolerance_between_its_lattice_points():
 def test_a_fit_measures_and_draws_the_points_it_is_given_besides_its_lattice():
     # Peaks found between the lattice's points are handed to the refit after knot insertion; a fit
     # that did not measure them judged itself on the lattice alone and kept its start.
-    from cam.fit.basis import evaluate_surface
+    from cam.spline.basis import evaluate_surface
     from cam.fit.solve import fit_surface
 
     L = 4.0
@@ -377,7 +377,7 @@ def test_inside_fixed_borders_a_surface_past_a_crease_is_drawn_back_onto_it():
     # where its closest mesh point is on the ridge itself, the mesh does not lie along a triangle's
     # normal from it, and the lattice left those points out. With mesh_edges they count, drawn
     # along the direction from the ridge, and so do the same distances.
-    from cam.fit.knots import lattice_knots
+    from cam.spline.knots import lattice_knots
     from cam.fit.solve import _surface_grid
 
     MV, MF = triangle_mesh(ridge(10.0, 0.8), np.linspace(0, 20, 81), np.linspace(0, 10, 41))

@@ -7,7 +7,7 @@ from datetime import datetime, timezone
 import numpy as np
 import pytest
 
-from cam.bspline import clamped_uniform_knots, make_bspline_surface
+from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 from cam.io.iges import iges_bytes, write_iges
 
 WHEN = datetime(2024, 5, 1, 12, 30, 0, tzinfo=timezone.utc)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.ingest import IngestError, clean_cloud, clean_mesh
+from cam.ingest.clean import IngestError, clean_cloud, clean_mesh
 
 RNG = np.random.default_rng(11)
 
@@ -167,10 +167,10 @@ def test_mesh_limits_and_bad_indices():
 
 @pytest.mark.parametrize("collide", [False, True])
 def test_duplicate_detection_is_exact_even_when_hashes_collide(monkeypatch, collide):
-    import cam.rows
+    import cam.mesh.rows
 
     if collide:
-        monkeypatch.setattr(cam.rows, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
+        monkeypatch.setattr(cam.mesh.rows, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
     points = RNG.integers(-3, 4, size=(3000, 3)).astype(np.float64)
     result = _cloud(points)
     _, first = np.unique(points, axis=0, return_index=True)

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.closest import closest_on_triangles, closest_points, mesh_index
+from cam.mesh.closest import closest_on_triangles, closest_points, mesh_index
 from cam.io import ReadError, WriteError
-from cam.quadcheck import boundary_loops, inspect_quad_mesh, repair_quad_mesh
+from cam.remesh.check import boundary_loops, inspect_quad_mesh, repair_quad_mesh
 from cam.io.quads import read_quad_obj, write_ply_quads_colored, write_quad_obj
-from cam.quadmesh import face_areas, face_normals, quad_topology, vertex_fans
-from cam.quadshapes import quad_box, quad_grid, quad_torus
+from cam.mesh.quads import face_areas, face_normals, quad_topology, vertex_fans
+from tests.quadshapes import quad_box, quad_grid, quad_torus
 
 
 def _signed_volume(v, f):

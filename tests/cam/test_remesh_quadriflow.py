@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.quadcheck import inspect_quad_mesh
+from cam.remesh.check import inspect_quad_mesh
 from cam.io.quads import read_quad_obj
-from cam.quadmesh import face_areas, face_normals
+from cam.mesh.quads import face_areas, face_normals
 from tests.conftest import SHARED_DATA
 
 pytest.importorskip("pyQuadriFlow")
 
-from cam.remesh import QuadriflowFailed, boundary_loop_count, remesh_quads, run_quadriflow
+from cam.remesh.quadriflow import QuadriflowFailed, boundary_loop_count, remesh_quads, run_quadriflow
 from service.params import JobParams
 
 
@@ -57,7 +57,7 @@ def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
 
 def test_the_report_counts_every_run_and_the_failed_ones(monkeypatch):
     # Runs that fail after one passed are runs too: attempts counts them, failed_attempts names them.
-    import cam.remesh as remesh
+    import cam.remesh.quadriflow as remesh
 
     real = remesh.run_quadriflow
 
@@ -87,7 +87,7 @@ def _box_with_a_corner_cut_off():
 
 
 def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
-    from cam.creasefollow import measure_crease_following
+    from cam.remesh.creases import measure_crease_following
 
     mesh = _box_with_a_corner_cut_off()
     result = remesh_quads(mesh.vertices, mesh.faces, target_faces=400, seed=0, candidates=3, timeout_s=120)
@@ -176,7 +176,7 @@ def test_the_child_does_not_outlive_a_killed_parent(tmp_path):
     script = tmp_path / "parent.py"
     script.write_text(
         "import trimesh\n"
-        "from cam.remesh import run_quadriflow\n"
+        "from cam.remesh.quadriflow import run_quadriflow\n"
         "m = trimesh.creation.icosphere(5)\n"
         "run_quadriflow(m.vertices, m.faces, target_faces=400000, seed=0, timeout_s=600)\n"
     )

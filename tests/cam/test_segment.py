@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from cam.io.quads import read_quad_obj, write_quad_obj
-from cam.quadmesh import face_normals, quad_topology
-from cam.quadshapes import quad_box, quad_capped_cylinder, quad_grid, quad_torus
+from cam.mesh.quads import face_normals, quad_topology
+from tests.quadshapes import quad_box, quad_capped_cylinder, quad_grid, quad_torus
 from cam.segment import segment_quads
 from cam.segment.clip import CutState, complete_cuts, patch_labels
 from cam.segment.graph import kruskal
@@ -224,7 +224,7 @@ def test_segment_stage_reports_unreadable_input(tmp_path):
 
 def _quadriflow(vertices, triangles, target):
     pytest.importorskip("pyQuadriFlow")
-    from cam.remesh import remesh_quads
+    from cam.remesh.quadriflow import remesh_quads
 
     result = remesh_quads(vertices, triangles, target_faces=target, seed=0, timeout_s=120)
     return result.vertices, result.faces

@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
-from cam.quadmesh import quad_topology
-from cam.quadshapes import quad_box, quad_capped_cylinder, quad_torus, quads_from_triangles
+from cam.mesh.quads import quad_topology
+from tests.quadshapes import quad_box, quad_capped_cylinder, quad_torus, quads_from_triangles
 from cam.segment import segment_quads
 from cam.segment.traces import straight_continuation, trace_line
 from tests.cam.test_segment import check_partition

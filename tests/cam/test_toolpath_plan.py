@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.toolpath import analytic
-from cam.toolpath.access import Setup
-from cam.toolpath.geometry import Patch, frame, principal_curvatures
-from cam.toolpath.grid import TooConcave, check_concavity, ring_grid
-from cam.toolpath.plan import _largest_rectangle, exclude_points, plan_job, plan_patch
-from cam.toolpath.edge import edge_scallop, ray_capsule_entry
-from cam.toolpath.rings import corner_scallop, ring_path
-from cam.toolpath.scallop import flat_spacing
+from cam.spline import analytic
+from cam.plan.access import Setup
+from cam.spline.geometry import Patch, frame, principal_curvatures
+from cam.plan.grid import TooConcave, check_concavity, ring_grid
+from cam.plan.plan import _largest_rectangle, exclude_points, plan_job, plan_patch
+from cam.plan.edge import edge_scallop, ray_capsule_entry
+from cam.plan.rings import corner_scallop, ring_path
+from cam.plan.scallop import flat_spacing
 
 EYE = [Setup(1, np.eye(3), np.zeros(3))]
 
@@ -50,7 +50,7 @@ def test_a_hollow_tighter_than_any_ball_is_called_a_likely_ripple():
 
 def _folded_plane():
     """A 10 x 10 mm plane with control columns at x = 0, 2.5, 9.5, 3, 10: x(u) turns back, an S-fold."""
-    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
     g = np.linspace(0, 10, 5)
     X, Y = np.meshgrid(g, g, indexing="ij")
@@ -61,7 +61,7 @@ def _folded_plane():
 
 
 def test_a_folded_surface_is_found_and_reported_not_cut():
-    from cam.bspline import find_folds
+    from cam.spline.surface import find_folds
 
     flat = analytic.plane(10, 10, z=-5.0)
     assert find_folds(flat) == (0.0, None)
@@ -115,7 +115,7 @@ def test_a_patch_facing_down_goes_to_the_opposite_setup():
     # The underside: the same plane flipped so its outward normal points down (−Z).
     cp = top.control_points.copy()[::-1]
     cp[..., 2] = -5.0
-    from cam.bspline import make_bspline_surface
+    from cam.spline.surface import make_bspline_surface
 
     bottom = make_bspline_surface(cp, top.knots_u, top.knots_v)
     plan = plan_job([1, 2], [top, bottom], EYE, tool_radius_mm=3.0, scallop_height_mm=0.16)
@@ -128,7 +128,7 @@ def test_a_patch_facing_down_goes_to_the_opposite_setup():
 
 
 def test_largest_clear_rectangle_against_every_rectangle():
-    from cam.toolpath.region import largest_clear_rectangle
+    from cam.plan.region import largest_clear_rectangle
 
     def brute(bad, weight):
         best, out = -1.0, None
@@ -162,9 +162,9 @@ def test_largest_clear_rectangle_against_every_rectangle():
 
 
 def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
-    from cam.bspline import clamped_uniform_knots, find_folds, make_bspline_surface
-    from cam.toolpath.geometry import Patch
-    from cam.toolpath.region import finishable_region
+    from cam.spline.surface import clamped_uniform_knots, find_folds, make_bspline_surface
+    from cam.spline.geometry import Patch
+    from cam.plan.region import finishable_region
 
     g = np.linspace(0, 10, 8)
     X, Y = np.meshgrid(g, g, indexing="ij")
@@ -188,8 +188,8 @@ def test_a_fold_narrower_than_the_fits_own_grid_is_reported_where_the_planner_fi
     # A plane with one of 31 control columns pulled back two column steps: a fold 0.3 mm wide, between
     # the samples of the 33 x 33 grid the fit compares its steps on. The fit's report uses the grid
     # the planner checks, so surfaces.json does not call a surface clean that the planner trims.
-    from cam.bspline import FOLD_CHECK_SAMPLES, clamped_uniform_knots, find_folds, make_bspline_surface
-    from cam.toolpath.region import finishable_region
+    from cam.spline.surface import FOLD_CHECK_SAMPLES, clamped_uniform_knots, find_folds, make_bspline_surface
+    from cam.plan.region import finishable_region
 
     g = np.linspace(0, 10, 31)
     X, Y = np.meshgrid(g, np.linspace(0, 10, 5), indexing="ij")
@@ -203,8 +203,8 @@ def test_a_fold_narrower_than_the_fits_own_grid_is_reported_where_the_planner_fi
 
 
 def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
-    from cam.bspline import clamped_uniform_knots, make_bspline_surface
-    from cam.toolpath.region import finishable_region
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
+    from cam.plan.region import finishable_region
 
     g = np.linspace(0, 10, 6)
     X, Y = np.meshgrid(g, g, indexing="ij")
@@ -221,8 +221,8 @@ def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
 
 
 def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch):
-    import cam.toolpath.plan as plan_module
-    from cam.toolpath.geometry import NotPlannable
+    import cam.plan.plan as plan_module
+    from cam.spline.geometry import NotPlannable
 
     real = plan_module.plan_patch
 
@@ -232,7 +232,7 @@ def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch)
         return real(p, *args, **kwargs)
 
     monkeypatch.setattr(plan_module, "plan_patch", flaky)
-    from cam.toolpath.geometry import transform_surface
+    from cam.spline.geometry import transform_surface
 
     flat = analytic.plane(10, 10, z=-5.0)
     beside = transform_surface(analytic.plane(10, 10), np.eye(3), np.array([0.0, 20.0, 0.0]))
@@ -308,7 +308,7 @@ def test_edge_material_peaks_where_the_edge_turns_a_corner():
     # The first ring, inset at u = 0.05, turns with it, and the apex of the edge lies farther from it than
     # the rest: the material peaks sharply there, which none of 32 even samples hits. The knot is sampled
     # too (without it 32 samples reported 0.2035 mm against 0.2292 mm left).
-    from cam.bspline import make_bspline_surface
+    from cam.spline.surface import make_bspline_surface
 
     y = np.array([0, 8 / 3, 16 / 3, 8, 32 / 3, 40 / 3, 16])
     left = np.stack([-3 * (8 - np.abs(y - 8)) / 8, y, np.zeros_like(y)], -1)
@@ -432,7 +432,7 @@ def test_a_band_the_ball_cannot_reach_across_the_middle_leaves_both_sides_machin
     assert [q["region"] for q in claims] == [list(first.region), list(second.region)]
     assert sum(q["kept"] for q in claims) == pytest.approx((20 - 6) / 20, abs=0.02)
     from cam.gcode import parse_program, write_program
-    from cam.toolpath.region import sub_surface
+    from cam.plan.region import sub_surface
     from cam.verify import measure_program
 
     sp = plan.setups[0]
@@ -446,7 +446,7 @@ def test_a_band_the_ball_cannot_reach_across_the_middle_leaves_both_sides_machin
 def test_move_clearance_finds_a_dip_between_its_samples():
     # A straight move of the ball centre 0.01 mm too low over the apex of a dome: its ends are clear,
     # and its samples 0.53 mm apart miss the apex; the refinement finds the exact -0.01 mm there.
-    from cam.toolpath.gouge import build_index, move_clearance
+    from cam.plan.gouge import build_index, move_clearance
 
     index = build_index([Patch(1, analytic.paraboloid(15.0, 16.0))], spacing_mm=0.5)
     a, b = np.array([[-0.9, 0.0, 2.99]]), np.array([[0.7, 0.0, 2.99]])
@@ -458,8 +458,8 @@ def test_closest_points_cross_a_c0_line():
     # A sheet whose u = 1/2 iso-line is a C0 line (its v = 0 border turns up by 76 degrees there;
     # each half is bilinear, so its net is the map at the Greville abscissae). Points above it by
     # known heights must get exactly those distances whichever side Newton starts on.
-    from cam.bspline import make_bspline_surface
-    from cam.toolpath.gouge import _project
+    from cam.spline.surface import make_bspline_surface
+    from cam.plan.gouge import _project
 
     ku = np.array([0, 0, 0, 0, 0.5, 0.5, 0.5, 1, 1, 1, 1.0])
     kv = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
@@ -483,8 +483,8 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     # samples), concave radius just under the 3 mm ball at its bottom: the ball reaches every
     # contact (no lift), the concavity check finds the hollow, and the plan gives up the strip
     # holding it and finishes the rest, instead of losing the patch.
-    from cam.bspline import clamped_uniform_knots, make_bspline_surface
-    from cam.toolpath.gouge import build_index
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
+    from cam.plan.gouge import build_index
 
     nu, nv = 161, 9
     ku, kv = clamped_uniform_knots(nu), clamped_uniform_knots(nv)
@@ -501,7 +501,7 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     assert 1.875 / 20 < u0 < 0.25 and (u1, v0, v1) == (1.0, 0.0, 1.0)
     assert pp.certified_scallop_mm <= 0.16 and pp.replans >= 1
     # The claim says why the rest is left: the hollow, not a neighbour the ball would touch.
-    from cam.toolpath.plan import _claim
+    from cam.plan.plan import _claim
 
     assert pp.hollows and not pp.touched
     reason = _claim(plate.surface, pp, None)["reason"]
@@ -516,8 +516,8 @@ def test_a_hollow_between_the_concavity_samples_is_reported_where_a_ring_meets_i
     # (0.219 mm apart): the grid misses it. A ring's line that runs along the trough, or the next line
     # a step lands on, has no scallop relation there; the step names the hollow and where it lies on
     # the line (so plan_patch can cut it out), instead of giving up the patch as degenerate.
-    from cam.bspline import clamped_uniform_knots, make_bspline_surface
-    from cam.toolpath.grid import side_step
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
+    from cam.plan.grid import side_step
 
     nu, nv, width, height = 9, 201, 16.0, 7.0
     ku, kv = clamped_uniform_knots(nu), clamped_uniform_knots(nv)

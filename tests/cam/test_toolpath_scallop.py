@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.toolpath.scallop import (
+from cam.plan.scallop import (
     approximate_spacing,
     arc_gap,
     fits_concave,

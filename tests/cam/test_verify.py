@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from cam.gcode import parse_program, write_program
-from cam.toolpath import analytic
-from cam.toolpath.access import Setup
-from cam.toolpath.geometry import Patch
-from cam.toolpath.plan import plan_job
-from cam.toolpath.scallop import flat_spacing
-from cam.toolpath.region import sub_surface
+from cam.spline import analytic
+from cam.plan.access import Setup
+from cam.spline.geometry import Patch
+from cam.plan.plan import plan_job
+from cam.plan.scallop import flat_spacing
+from cam.plan.region import sub_surface
 from cam.verify import measure_program
 from cam.verify.sweep import Sweep
 
@@ -205,7 +205,7 @@ def test_overhang_over_a_patch_is_left_out_of_its_claim(start, monkeypatch):
     # points finds it before planning; where it would miss it (start="whole": the rectangle starts as the
     # whole floor, whose four sides are all reachable), planning the interior finds it and re-plans.
     if start == "whole":
-        import cam.toolpath.plan as planner
+        import cam.plan.plan as planner
 
         monkeypatch.setattr(planner, "reachable_domain", lambda patch, index, **kw: planner._box(patch))
     floor = analytic.plane(20.0, 16.0)

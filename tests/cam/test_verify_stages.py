@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cam.io import read_input
-from cam.toolpath import analytic
+from cam.spline import analytic
 from worker.context import StageContext, StageError
 from service.params import JobParams
 
@@ -61,7 +61,7 @@ def test_plan_then_verify(tmp_path):
 
 
 def test_a_partly_finished_patch_is_claimed_and_verified_on_its_claim(tmp_path):
-    from cam.bspline import clamped_uniform_knots, make_bspline_surface
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
     from worker.stages.plan import run_plan
     from worker.stages.verify import run_verify
 
@@ -90,7 +90,7 @@ def test_a_partly_finished_patch_is_claimed_and_verified_on_its_claim(tmp_path):
 def test_a_patch_claimed_on_two_rectangles_is_verified_on_both(tmp_path):
     # A floor with a rib standing across it: the ball finishes the floor on both sides of the rib, two
     # claims of one patch in setup.json; verify measures the program on exactly those two rectangles.
-    from cam.toolpath import analytic
+    from cam.spline import analytic
     from worker.stages.plan import run_plan
     from worker.stages.verify import run_verify
 

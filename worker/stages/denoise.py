@@ -5,7 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from cam.denoise import DenoiseCanceled, denoise_mesh
+from cam.denoise.mesh_tgv import DenoiseCanceled, denoise_mesh
 from cam.io import read_ply, write_ply_mesh
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped, write_json
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cam.ingest import clean_cloud, clean_mesh
+from cam.ingest.clean import clean_cloud, clean_mesh
 from cam.io import ReadError, read_input, write_ply_mesh, write_ply_points
 from worker.context import StageContext, StageError, write_json
 

@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from cam.bspline import surface_from_json
+from cam.spline.surface import surface_from_json
 from cam.gcode import GENERATOR, write_program
 from cam.io.atomic import atomic_write
-from cam.toolpath.access import Setup
-from cam.toolpath.geometry import orientation_signs
-from cam.toolpath.plan import Plan, plan_job
+from cam.plan.access import Setup
+from cam.spline.geometry import orientation_signs
+from cam.plan.plan import Plan, plan_job
 from worker.context import StageContext, StageError, write_json
 
 

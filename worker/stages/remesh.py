@@ -6,7 +6,7 @@ from pathlib import Path
 
 from cam.io import read_ply
 from cam.io.quads import write_quad_obj
-from cam.remesh import remesh_quads
+from cam.remesh.quadriflow import remesh_quads
 from worker.context import StageContext, StageError, write_json
 
 def run_remesh(ctx: StageContext) -> dict[str, Path]:

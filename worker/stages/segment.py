@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from cam.io.quads import read_quad_obj, write_ply_quads_colored
-from cam.quadmesh import face_normals
+from cam.mesh.quads import face_normals
 from cam.segment import Segmentation, segment_quads
 from worker.context import StageContext, StageError, write_json
 

@@ -8,10 +8,10 @@ import numpy as np
 
 from cam.gcode import GCodeError, parse_program
 from cam.io.atomic import atomic_write
-from cam.toolpath.access import machine_patches
-from cam.toolpath.geometry import Patch
-from cam.toolpath.region import sub_surface
-from cam.toolpath.scallop import flat_spacing
+from cam.plan.access import machine_patches
+from cam.spline.geometry import Patch
+from cam.plan.region import sub_surface
+from cam.plan.scallop import flat_spacing
 from cam.verify import heat_colors, measure_program
 from worker.context import StageContext, StageError, write_json
 from worker.stages.plan import load_setups, load_surfaces, outward_signs

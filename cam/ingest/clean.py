@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from cam.rows import first_occurrences
+from cam.mesh.rows import first_occurrences
 
 __all__ = ["CleanCloud", "CleanMesh", "IngestError", "clean_cloud", "clean_mesh"]
 

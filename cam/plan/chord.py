@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.geometry import NotPlannable, Patch, frame, normal_curvature
+from cam.spline.geometry import NotPlannable, Patch, frame, normal_curvature
 
 __all__ = ["PassPoints", "discretize", "lattices"]
 

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.edge import ray_capsule_entry
-from cam.toolpath.geometry import Patch, frame
+from cam.plan.edge import ray_capsule_entry
+from cam.spline.geometry import Patch, frame
 
 __all__ = ["RingPath", "corner_scallop", "ring_path", "shrink_for_corners"]
 

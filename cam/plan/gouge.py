@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cam.bspline import BSplineSurface, c0_pieces, foot_in_pieces, make_piece_boxes
-from cam.toolpath.geometry import Patch
+from cam.spline.surface import BSplineSurface, c0_pieces, foot_in_pieces, make_piece_boxes
+from cam.spline.geometry import Patch
 
 __all__ = [
     "SurfaceIndex",
@@ -75,7 +75,7 @@ def build_index(patches: list[Patch], *, spacing_mm: float) -> SurfaceIndex:
 
 def _project(patch: Patch, x: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The foot point of x (n, 3) on the patch from uv (n, 2): (uv, foot); across C0 knot lines see
-    `cam.bspline.foot_in_pieces`."""
+    `cam.spline.surface.foot_in_pieces`."""
     s = patch.surface
     (u0, u1), (v0, v1) = patch.domain
     base = getattr(s, "base", s)

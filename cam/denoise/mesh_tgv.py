@@ -1,6 +1,6 @@
 """Mesh denoising for the ``denoise`` stage: MeshTGV normal filtering, then the vertex update.
 
-``denoise_mesh`` is the public entry. The normal filtering lives in :mod:`cam.tgv_normals`; this
+``denoise_mesh`` is the public entry. The normal filtering lives in :mod:`cam.denoise.tgv`; this
 module validates the input, makes it scale and translation free (lengths in units of the mean edge
 length), runs the filter, moves the vertices to follow the filtered normals and maps the result back
 to the input's units.
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from cam.tgv_normals import face_topology, tgv_filter_normals
+from cam.denoise.tgv import face_topology, tgv_filter_normals
 
 __all__ = ["PARAMETER_BOUNDS", "DenoiseCanceled", "DenoiseResult", "denoise_mesh"]
 

@@ -5,8 +5,8 @@ because on rare inputs it loops forever; a timeout, a crash or a result that
 fails the checks is retried with the next seed. How many of the input's creases
 QuadriFlow's edges follow depends on its seed, so several results that pass are
 compared and the one that follows most of them is kept
-(:mod:`cam.creasefollow`). A result is
-repaired where that is small and safe (:mod:`cam.quadcheck`), oriented like
+(:mod:`cam.remesh.creases`). A result is
+repaired where that is small and safe (:mod:`cam.remesh.check`), oriented like
 the input, and its vertices are projected onto the input triangles: QuadriFlow
 works in single precision, and the projection restores double precision (and
 puts every vertex on the input surface). Closeness is reported as a two-sided
@@ -29,10 +29,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from cam.closest import MeshIndex, closest_points, mesh_index
-from cam.creasefollow import measure_crease_following
-from cam.quadcheck import inspect_quad_mesh, repair_quad_mesh
-from cam.quadmesh import face_areas, face_normals
+from cam.mesh.closest import MeshIndex, closest_points, mesh_index
+from cam.remesh.creases import measure_crease_following
+from cam.remesh.check import inspect_quad_mesh, repair_quad_mesh
+from cam.mesh.quads import face_areas, face_normals
 
 __all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]
 
@@ -128,7 +128,7 @@ def run_quadriflow(
     env = dict(os.environ)
     root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    proc = subprocess.Popen([sys.executable, "-m", "cam.quadriflow_child"], stdin=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "cam.remesh.child"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     # communicate() in a thread: polling communicate(timeout=...) cannot resume sending stdin.
     result: dict[str, bytes] = {}
@@ -254,7 +254,7 @@ def remesh_quads(
         Most QuadriFlow runs, ≥ 1. When none passed and some failed on
         triangular holes that cannot be paired, one more run at a quarter of the
         faces fills them and splits every face into four quads
-        (:func:`cam.quadcheck.split_into_quads`); the report says ``"split": true``.
+        (:func:`cam.remesh.check.split_into_quads`); the report says ``"split": true``.
     candidates
         Runs that pass the checks to compare, ≥ 1: attempts stop once this many
         passed, and of those the one whose edges follow the most crease length

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.bspline import BSplineSurface
-from cam.toolpath.geometry import Patch, frame, transform_surface
-from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, shank_clear
+from cam.spline.surface import BSplineSurface
+from cam.spline.geometry import Patch, frame, transform_surface
+from cam.plan.gouge import SurfaceIndex, build_index, clearance, shank_clear
 
 __all__ = ["Assignment", "Setup", "assign_setups", "machine_patches", "opposite_setup", "reach"]
 

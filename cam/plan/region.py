@@ -15,11 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import FOLD_CHECK_SAMPLES, BSplineSurface, fold_mask
-from cam.fit.knots import sub_curve
-from cam.toolpath.geometry import Patch, frame, principal_curvatures
-from cam.toolpath.grid import concave_message
-from cam.toolpath.scallop import fits_concave
+from cam.spline.surface import FOLD_CHECK_SAMPLES, BSplineSurface, fold_mask
+from cam.spline.knots import sub_curve
+from cam.spline.geometry import Patch, frame, principal_curvatures
+from cam.plan.grid import concave_message
+from cam.plan.scallop import fits_concave
 
 __all__ = ["Region", "area_share", "finishable_region", "largest_clear_rectangle", "sub_surface", "surface_area"]
 
@@ -135,7 +135,7 @@ def area_share(surface: BSplineSurface, box: tuple[float, float, float, float], 
 def sub_surface(surface: BSplineSurface, box: tuple[float, float, float, float]) -> BSplineSurface:
     """The same surface on the parameter rectangle `box` = (u0, u1, v0, v1), as its own B-spline
     (exact: knot insertion), with the same parameters."""
-    from cam.bspline import make_bspline_surface
+    from cam.spline.surface import make_bspline_surface
 
     u0, u1, v0, v1 = box
     cp = surface.control_points

@@ -5,7 +5,7 @@ round a crease that runs through it: a crease of the input that no quad edge
 follows ends up inside a patch, and the fit misses it there by up to the quad
 size times the crease's turn. QuadriFlow's ``-sharp`` follows most creases, but
 how many depends on its seed (on Fandisk ×10 at 3,000 quads, seeds 0, 1 and 2
-miss 193, 27 and 110 mm of its 669 mm), so :func:`cam.remesh.remesh_quads` measures each layout
+miss 193, 27 and 110 mm of its 669 mm), so :func:`cam.remesh.quadriflow.remesh_quads` measures each layout
 with :func:`measure_crease_following` and keeps the one that misses least.
 """
 

@@ -1,8 +1,8 @@
 """Child-process entry that runs QuadriFlow once: arrays in on stdin, arrays out on stdout (npz).
 
 QuadriFlow runs in its own process because it can, on rare inputs, loop
-forever or crash inside C++; the parent (:mod:`cam.remesh`) kills it on a
-timeout. Run as ``python -m cam.quadriflow_child``. Exit status 0 = result
+forever or crash inside C++; the parent (:mod:`cam.remesh.quadriflow`) kills it on a
+timeout. Run as ``python -m cam.remesh.child``. Exit status 0 = result
 written, 3 = QuadriFlow reported an error (message on stderr).
 """
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.bspline import BSplineSurface, make_bspline_surface
+from cam.spline.surface import BSplineSurface, make_bspline_surface
 
 __all__ = [
     "Frame",

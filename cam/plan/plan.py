@@ -15,15 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.bspline import BSplineSurface
-from cam.toolpath.access import Assignment, Setup, assign_setups, machine_patches
-from cam.toolpath.chord import discretize, lattices
-from cam.toolpath.geometry import NotPlannable, Patch, frame
-from cam.toolpath.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
-from cam.toolpath.grid import TooConcave, concave_message, ring_grid
-from cam.toolpath.region import Region, area_share, finishable_region, sub_surface
-from cam.toolpath.link import MoveList, link_passes, order_patches
-from cam.toolpath.rings import ring_path
+from cam.spline.surface import BSplineSurface
+from cam.plan.access import Assignment, Setup, assign_setups, machine_patches
+from cam.plan.chord import discretize, lattices
+from cam.spline.geometry import NotPlannable, Patch, frame
+from cam.plan.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
+from cam.plan.grid import TooConcave, concave_message, ring_grid
+from cam.plan.region import Region, area_share, finishable_region, sub_surface
+from cam.plan.link import MoveList, link_passes, order_patches
+from cam.plan.rings import ring_path
 
 __all__ = ["GOUGE_TOL_MM", "PatchPlan", "Plan", "SetupPlan", "plan_job", "plan_patch"]
 
@@ -337,7 +337,7 @@ def _box(patch: Patch) -> tuple[float, float, float, float]:
 
 def _restrict(surface, region):
     """The same surface on a parameter sub-rectangle (knot insertion free: a reparameterising wrapper)."""
-    from cam.toolpath.geometry import SubSurface
+    from cam.spline.geometry import SubSurface
 
     return SubSurface(surface, region)
 

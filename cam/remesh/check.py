@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.quadmesh import QuadTopology, quad_topology, vertex_fans
+from cam.mesh.quads import QuadTopology, quad_topology, vertex_fans
 
 __all__ = ["QuadMeshReport", "boundary_loops", "drop_unused_vertices", "inspect_quad_mesh", "repair_quad_mesh"]
 

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.toolpath.edge import inset_rectangle
-from cam.toolpath.geometry import NotPlannable, Patch, across_iso_line, frame, iso_line_frame, principal_curvatures
-from cam.toolpath.scallop import arc_gap, fits_concave, scallop_from_half_chord
+from cam.plan.edge import inset_rectangle
+from cam.spline.geometry import NotPlannable, Patch, across_iso_line, frame, iso_line_frame, principal_curvatures
+from cam.plan.scallop import arc_gap, fits_concave, scallop_from_half_chord
 
 __all__ = ["RingGrid", "TooConcave", "check_concavity", "concave_message", "global_steps", "ring_grid"]
 
@@ -228,7 +228,7 @@ def ring_grid(patch: Patch, *, tool_radius_mm: float, scallop_mm: float, samples
         if nc >= nd:
             nc = nd = float(np.clip(0.5 * (c + d), d - sd, c + sc))
         if strategy == "paper":
-            from cam.toolpath.rings import shrink_for_corners
+            from cam.plan.rings import shrink_for_corners
 
             na, nb = shrink_for_corners(patch, (a, b, c, d), (na, nb, nc, nd), r=r,
                                         h=h if corner_mm is None else corner_mm, samples=k)
