@@ -27,11 +27,10 @@ import sys
 import time
 from pathlib import Path
 
-from machine_info import cpu_model  # bench/ is on the path when a script runs
-
 import numpy as np
 import scipy.sparse as sp
 import trimesh
+from machine_info import cpu_model  # bench/ is on the path when a script runs
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))

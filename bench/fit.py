@@ -20,9 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine_info import describe_machine  # bench/ is on the path when a script runs
-
 import numpy as np
+from machine_info import describe_machine  # bench/ is on the path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -78,8 +77,8 @@ def bench_mesh(name: str, data: Path, work: Path, params: dict | None = None) ->
 
 def sampled_distances(doc: dict, mesh: tuple[np.ndarray, np.ndarray], n: int = 25) -> list[np.ndarray]:
     """Per surface, the distance (mm) to the mesh on an n x n grid of parameters."""
-    from cam.spline.surface import surface_from_json
     from cam.mesh.closest import closest_points, mesh_index
+    from cam.spline.surface import surface_from_json
 
     index = mesh_index(*mesh)
     t = np.linspace(0, 1, n)

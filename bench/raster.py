@@ -23,12 +23,13 @@ from matplotlib.path import Path as Polygon
 from opencamlib import ocl
 
 from cam.gcode import parse_program, write_program
-from cam.spline.geometry import Patch, frame
 from cam.plan.link import link_passes
 from cam.plan.scallop import flat_spacing
+from cam.spline.geometry import Patch, frame
 from cam.verify import measure_program
-from cam.verify.measure import _grid as sample_grid  # the same spacing rule verify samples with
-
+from cam.verify.measure import (
+    _grid as sample_grid,  # the same spacing rule verify samples with
+)
 
 THIN_MM = 5e-4  # on a convex pass a thinned chord dips into the part: keep it under the 0.001 mm gouge limit
 FACET_MM = 0.2  # triangle size: the facets' sag below the surface stays under 0.002 mm where its radius is ≥ 3 mm
@@ -176,7 +177,7 @@ def measure_raster(tris, machined: list[Patch], part: list[Patch], *, r: float, 
     t_plan = time.perf_counter() - t0
     moves = link_passes(passes, clearance_z=clearance_z, retract_mm=1.0)
     prog = parse_program(write_program(moves, header={}))
-    m = measure_program(prog, machined, part, tool_radius_mm=r, target_mm=h, interval_mm=float(flat_spacing(h, r)))
+    m = measure_program(prog, machined, part, tool_radius_mm=r, target_mm=h)
     st, rep = moves.stats(), m.report
     return {"stepover": stepover_mm, "max": rep["max_scallop_mm"] or 0.0, "length": st["cut_length_mm"],
             "air": st["air_length_mm"], "retracts": st["retracts"], "reached": 1 - rep["fraction_never_reached"],

@@ -19,9 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine_info import describe_machine  # bench/ is on the path when a script runs
-
 import numpy as np
+from machine_info import describe_machine  # bench/ is on the path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

@@ -45,11 +45,10 @@ import uuid
 from collections import Counter
 from pathlib import Path
 
-from machine_info import cpu_model  # bench/ is on the path when a script runs
-
 import httpx
 import numpy as np
 import psutil
+from machine_info import cpu_model  # bench/ is on the path when a script runs
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "results" / "service.md"

@@ -26,11 +26,11 @@ from machine_info import describe_machine  # bench/ is on the path when a script
 
 from cam.gcode import parse_program, write_program
 from cam.spline import analytic
-from cam.plan.access import Setup, machine_patches
+from cam.gcode.setup import Setup
 from cam.spline.geometry import Patch, orientation_signs
 from cam.plan.plan import plan_job
-from cam.plan.region import area_share, sub_surface, surface_area
-from cam.plan.scallop import flat_spacing
+from cam.spline.geometry import area_share, machine_patches, surface_area
+from cam.spline.knots import sub_surface
 from cam.verify import measure_program
 from raster import matched_raster
 
@@ -69,7 +69,7 @@ def run_part(ids, surfaces, signs, setups, h, strategy, *, raster=False, raster_
         if not machined:
             continue
         prog = parse_program(write_program(sp.moves, header={}))
-        m = measure_program(prog, machined, part, tool_radius_mm=R, target_mm=h, interval_mm=float(flat_spacing(h, R)))
+        m = measure_program(prog, machined, part, tool_radius_mm=R, target_mm=h)
         rep, st = m.report, sp.moves.stats()
         row["max"] = max(row["max"], rep["max_scallop_mm"] or 0.0)
         row["gouge"] = max(row["gouge"], rep["max_gouge_mm"], rep["max_rapid_gouge_mm"])
@@ -114,9 +114,9 @@ def end_to_end(name: str) -> dict | None:
     """The whole pipeline on a 50k-point cloud (with normals) of `name`_gt.obj ×10; None without the data."""
     import trimesh
 
+    from cam.io import read_surfaces
     from service.config import Settings
     from worker.local import run_local
-    from worker.stages.plan import load_surfaces
 
     src = DATA / f"{name}_gt.obj"
     if not src.exists():
@@ -137,7 +137,7 @@ def end_to_end(name: str) -> dict | None:
         verify = json.loads((out / "verify.json").read_text())
         tp = json.loads((out / "toolpath.json").read_text())
         surf = json.loads((out / "surfaces.json").read_text())
-        ids, surfaces = load_surfaces(out / "surfaces.json")
+        ids, surfaces = read_surfaces(out / "surfaces.json")
     area = {i: surface_area(s) for i, s in zip(ids, surfaces)}
     kept: dict[int, float] = {}  # a patch finished in part may be claimed on several rectangles
     for q in tp["partial"]:
@@ -158,10 +158,9 @@ def fitted_part(name: str, tmp: Path):
     """Our stages from the clean mesh ×10 up to `fit`: (ids, surfaces, signs, setups, fit seconds) or None."""
     import trimesh
 
-    from cam.io import read_input
+    from cam.io import read_input, read_setups, read_surfaces
     from service.config import Settings
     from worker.local import run_local
-    from worker.stages.plan import load_setups, load_surfaces
 
     src = DATA / f"{name}_gt.obj"
     if not src.exists():
@@ -175,8 +174,8 @@ def fitted_part(name: str, tmp: Path):
         reports = run_local(path, out, params={"tool": {"radius_mm": R}}, settings=Settings(), until="fit", stream=quiet)
     if reports[-1].status != "succeeded":
         raise RuntimeError(f"{name}: {reports[-1].name} failed: {reports[-1].error}")
-    ids, surfaces = load_surfaces(out / "surfaces.json")
-    _, setups = load_setups(out / "setup.json")
+    ids, surfaces = read_surfaces(out / "surfaces.json")
+    _, setups = read_setups(out / "setup.json")
     m = read_input(out / "mesh.ply")
     signs = orientation_signs(surfaces, mesh_vertices=m.points, mesh_faces=m.faces)
     return ids, surfaces, signs, setups

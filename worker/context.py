@@ -58,7 +58,9 @@ class StageContext:
 
     def read(self, name: str, reader: Callable[[Path], Any]) -> Any:
         """Input artifact `name` as `reader` returns it; a file it cannot read fails the stage, naming the file."""
-        from cam.io.errors import ReadError  # here, not at the top: the API imports this module, not cam
+        from cam.io.errors import (
+            ReadError,  # here, not at the top: the API imports this module, not cam
+        )
 
         try:
             return reader(self.inputs[name])

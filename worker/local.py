@@ -15,7 +15,13 @@ from typing import Any, TextIO
 from service.config import Settings
 from service.params import JobParams
 from service.pipeline import load_stages, stage_names_until
-from worker.context import StageCanceled, StageContext, StageError, StageSkipped, write_json
+from worker.context import (
+    StageCanceled,
+    StageContext,
+    StageError,
+    StageSkipped,
+    write_json,
+)
 from worker.runner import _implementation
 
 

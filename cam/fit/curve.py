@@ -17,8 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from cam.spline.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
 from cam.fit.refine import split_spans
+from cam.spline.basis import curve_matrix, evaluate_curve, gram_matrix, span_params
 
 __all__ = ["CurveFit", "fit_curve", "turns_back"]
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
-from cam.spline.basis import evaluate_surface, span_params
 from cam.mesh.closest import closest_points, mesh_index
+from cam.spline.basis import evaluate_surface, span_params
+from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
 
 __all__ = ["mesh_samples", "Assignment", "assign_samples", "project_points", "FootFrame", "foot_frames",
            "distance_to_surface", "Anchors", "grid_anchors"]

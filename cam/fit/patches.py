@@ -20,17 +20,36 @@ from typing import Callable
 
 import numpy as np
 
-from cam.spline.surface import FOLD_CHECK_SAMPLES, BSplineSurface, find_folds, make_bspline_surface
-from cam.spline.basis import evaluate_surface
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
-from cam.mesh.closest import closest_points, mesh_index, triangle_normals
-from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
+from cam.fit.crease import edge_keys, snap_points, vertex_positions
 from cam.fit.curve import CurveFit, fit_curve
-from cam.spline.knots import join_curves, lattice_knots, merge_knots, refine_knots, reverse_curve, shift_curve, sub_curve
 from cam.fit.measure import surface_peaks
-from cam.fit.param import assign_samples, distance_to_surface, grid_anchors, mesh_samples
+from cam.fit.param import (
+    assign_samples,
+    distance_to_surface,
+    grid_anchors,
+    mesh_samples,
+)
 from cam.fit.refine import Refined, fit_refined
 from cam.fit.solve import SurfaceFit
+from cam.mesh.closest import closest_points, mesh_index, triangle_normals
+from cam.mesh.creases import closest_on_creases, mesh_creases
+from cam.spline.basis import evaluate_surface
+from cam.spline.knots import (
+    join_curves,
+    lattice_knots,
+    merge_knots,
+    refine_knots,
+    reverse_curve,
+    shift_curve,
+    sub_curve,
+)
+from cam.spline.surface import (
+    FOLD_CHECK_SAMPLES,
+    BSplineSurface,
+    find_folds,
+    make_bspline_surface,
+)
 
 __all__ = ["PatchFit", "FitResult", "fit_patches"]
 

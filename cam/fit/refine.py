@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.spline.basis import find_spans
-from cam.spline.knots import refine_surface
 from cam.fit.measure import surface_peaks
 from cam.fit.solve import SurfaceFit, fit_surface
+from cam.spline.basis import find_spans
+from cam.spline.knots import refine_surface
 
 __all__ = ["Refined", "split_spans", "refine_targets", "border_mask", "fit_refined"]
 

@@ -23,11 +23,18 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
-from cam.spline.surface import c0_knots, find_folds, make_bspline_surface
-from cam.mesh.closest import MeshIndex, closest_points, triangle_normals
-from cam.spline.basis import evaluate_surface, span_params, surface_rows, thin_plate_matrix, weighted_grams, weighted_rhs
-from cam.spline.knots import lattice_knots
 from cam.fit.param import Anchors, foot_frames, project_points
+from cam.mesh.closest import MeshIndex, closest_points, triangle_normals
+from cam.spline.basis import (
+    evaluate_surface,
+    span_params,
+    surface_rows,
+    thin_plate_matrix,
+    weighted_grams,
+    weighted_rhs,
+)
+from cam.spline.knots import lattice_knots
+from cam.spline.surface import c0_knots, find_folds, make_bspline_surface
 
 __all__ = ["SurfaceFit", "fit_surface", "sdm_weights"]
 

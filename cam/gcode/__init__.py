@@ -1,16 +1,22 @@
-"""G-code: dialect tables, the writer, and our own parser (used by verify)."""
+"""G-code, shared by `plan` (which writes it) and `verify` (which reads it back): the move list
+(`moves`), dialect tables (`dialects`), the writer and our own strict reader (`parser`)."""
 
 from cam.gcode.dialects import DIALECTS, Dialect, get_dialect
+from cam.gcode.moves import FEED, PLUNGE, RAPID, MoveList
 from cam.gcode.parser import GCodeError, ParsedProgram, parse_program
 from cam.gcode.writer import GENERATOR, write_program
 
 __all__ = [
-           "DIALECTS",
-           "GENERATOR",
-           "Dialect",
-           "GCodeError",
-           "ParsedProgram",
-           "get_dialect",
-           "parse_program",
-           "write_program",
+    "DIALECTS",
+    "FEED",
+    "GENERATOR",
+    "PLUNGE",
+    "RAPID",
+    "Dialect",
+    "GCodeError",
+    "MoveList",
+    "ParsedProgram",
+    "get_dialect",
+    "parse_program",
+    "write_program",
 ]

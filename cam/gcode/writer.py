@@ -13,7 +13,7 @@ import textwrap
 import numpy as np
 
 from cam.gcode.dialects import Dialect, get_dialect
-from cam.plan.link import FEED, PLUNGE, RAPID, MoveList
+from cam.gcode.moves import FEED, PLUNGE, RAPID, MoveList
 
 __all__ = ["GENERATOR", "write_program"]
 

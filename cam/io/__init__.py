@@ -27,6 +27,10 @@ _EXPORTS = {
     "read_input": "cam.io.read",
     "InputData": "cam.io.records",
     "read_xyz": "cam.io.text",
+    "read_json": "cam.io.documents",
+    "read_setups": "cam.io.documents",
+    "read_surfaces": "cam.io.documents",
+    "write_json": "cam.io.documents",
 }
 
 __all__ = [
@@ -39,12 +43,16 @@ __all__ = [
     "atomic_write",
     "describe_unsupported",
     "read_input",
+    "read_json",
     "read_obj",
     "read_pcd",
     "read_ply",
+    "read_setups",
     "read_stl",
+    "read_surfaces",
     "read_xyz",
     "sniff_format",
+    "write_json",
     "write_ply_mesh",
     "write_ply_points",
 ]

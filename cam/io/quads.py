@@ -15,7 +15,10 @@ import numpy as np
 
 from cam.io.atomic import atomic_write
 from cam.io.errors import ReadError, WriteError
-from cam.io.ply import _header, _property_lines  # the same binary PLY layout as the triangle writer
+from cam.io.ply import (  # the same binary PLY layout as the triangle writer
+    _header,
+    _property_lines,
+)
 
 __all__ = ["read_quad_obj", "write_ply_quads_colored", "write_quad_obj"]
 

@@ -13,24 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.spline.surface import BSplineSurface
-from cam.spline.geometry import Patch, frame, transform_surface
+from cam.gcode.setup import Setup
 from cam.plan.gouge import SurfaceIndex, build_index, clearance, shank_clear
+from cam.spline.geometry import Patch, frame, machine_patches
+from cam.spline.surface import BSplineSurface
 
-__all__ = ["Assignment", "Setup", "assign_setups", "machine_patches", "opposite_setup", "reach"]
-
-
-@dataclass(frozen=True, eq=False)
-class Setup:
-    """machine point = rotation · part point + translation; tool axis = machine +Z."""
-
-    id: int
-    rotation: np.ndarray
-    translation: np.ndarray
-
-    def to_part(self, point: np.ndarray) -> np.ndarray:
-        """The part-frame point (float64 (3,), mm) of a machine-frame one."""
-        return self.rotation.T @ (np.asarray(point, dtype=np.float64) - self.translation)
+__all__ = ["Assignment", "assign_setups", "opposite_setup", "reach"]
 
 
 @dataclass
@@ -53,12 +41,6 @@ def opposite_setup(setup: Setup, surfaces: list[BSplineSurface], *, new_id: int)
     m2 = pts @ rot.T
     shift = np.array([*(m1[:, :2].mean(0) - m2[:, :2].mean(0)), m1[:, 2].min() - m2[:, 2].min()])
     return Setup(id=new_id, rotation=rot, translation=shift)
-
-
-def machine_patches(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarray, setup: Setup) -> list[Patch]:
-    """The surfaces moved into the setup's machine frame, with their outward signs."""
-    return [Patch(int(i), transform_surface(s, setup.rotation, setup.translation), float(g))
-            for i, s, g in zip(ids, surfaces, signs)]
 
 
 def reach(index: SurfaceIndex, patch: Patch, r: float, *, samples: int = 10) -> tuple[float, str]:

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.spline.geometry import NotPlannable, Patch, frame, normal_curvature
+from cam.plan.errors import NotPlannable
+from cam.spline.geometry import Patch, frame, normal_curvature
 
 __all__ = ["PassPoints", "discretize", "lattices"]
 

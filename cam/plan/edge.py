@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from cam.spline.geometry import NotPlannable, Patch, across_iso_line, iso_line_frame
+from cam.plan.errors import NotPlannable
 from cam.plan.scallop import arc_gap
+from cam.spline.geometry import Patch, across_iso_line, iso_line_frame
 
 __all__ = ["edge_scallop", "edge_step", "inset_rectangle", "ray_capsule_entry"]
 

@@ -16,8 +16,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cam.spline.surface import BSplineSurface, c0_pieces, foot_in_pieces, make_piece_boxes
 from cam.spline.geometry import Patch
+from cam.spline.surface import (
+    BSplineSurface,
+    c0_pieces,
+    foot_in_pieces,
+    make_piece_boxes,
+)
 
 __all__ = [
     "SurfaceIndex",

@@ -26,22 +26,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from cam.plan.edge import inset_rectangle
-from cam.spline.geometry import NotPlannable, Patch, across_iso_line, frame, iso_line_frame, principal_curvatures
+from cam.plan.errors import NotPlannable, TooConcave, concave_message
 from cam.plan.scallop import arc_gap, fits_concave, scallop_from_half_chord
+from cam.spline.geometry import (
+    Patch,
+    across_iso_line,
+    frame,
+    iso_line_frame,
+    principal_curvatures,
+)
 
-__all__ = ["RingGrid", "TooConcave", "check_concavity", "concave_message", "global_steps", "ring_grid"]
+__all__ = ["RingGrid", "check_concavity", "global_steps", "ring_grid"]
 
 SIDES = ("v0", "u1", "v1", "u0")  # bottom, right, top, left of the parameter square
-
-
-class TooConcave(ValueError):
-    """The patch holds a concave radius of curvature not larger than the tool radius."""
-
-    def __init__(self, message: str, *, radius_mm: float, point: np.ndarray, uv: np.ndarray | None = None) -> None:
-        super().__init__(message)
-        self.radius_mm = radius_mm
-        self.point = point
-        self.uv = np.zeros((0, 2)) if uv is None else uv  # float (k, 2): every sample found too concave
 
 
 @dataclass(frozen=True)
@@ -80,21 +77,6 @@ def _too_concave(fr, kmin: np.ndarray, bad: np.ndarray, u: np.ndarray, v: np.nda
     radius = -1.0 / kmin[i]
     return TooConcave(concave_message(radius, r, fr.p[i]), radius_mm=float(radius), point=fr.p[i],
                       uv=np.stack([u[bad], v[bad]], -1))
-
-
-# The smallest ball end mills sold are 0.1 mm across: a hollow tighter than that is no feature a ball can
-# be bought for, and on a fitted surface it is far more often a ripple of the fit than of the part.
-SMALLEST_BALL_RADIUS_MM = 0.05
-
-
-def concave_message(radius_mm: float, tool_radius_mm: float, point: np.ndarray) -> str:
-    """What a user reads about a hollow the ball does not fit."""
-    where = (f"concave radius of curvature {radius_mm:.3f} mm is not larger than the tool radius "
-             f"{tool_radius_mm:g} mm near {np.round(point, 3).tolist()}")
-    if radius_mm < SMALLEST_BALL_RADIUS_MM:
-        return (f"{where}; no ball end mill is that small: if the part has no such corner there, the fitted "
-                "surface ripples (surfaces.json gives each patch's fit error)")
-    return f"{where}; use a smaller ball"
 
 
 def _point_to_polyline(x: np.ndarray, poly: np.ndarray):

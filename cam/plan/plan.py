@@ -15,15 +15,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam.spline.surface import BSplineSurface
-from cam.plan.access import Assignment, Setup, assign_setups, machine_patches
+from cam.gcode.moves import MoveList
+from cam.gcode.setup import Setup
+from cam.plan.access import Assignment, assign_setups
 from cam.plan.chord import discretize, lattices
-from cam.spline.geometry import NotPlannable, Patch, frame
-from cam.plan.gouge import SurfaceIndex, build_index, clearance, lift_to_clear, move_clearance, shank_clear
-from cam.plan.grid import TooConcave, concave_message, ring_grid
-from cam.plan.region import Region, area_share, finishable_region, sub_surface
-from cam.plan.link import MoveList, link_passes, order_patches
+from cam.plan.errors import NotPlannable, TooConcave, Unreachable, concave_message
+from cam.plan.gouge import (
+    SurfaceIndex,
+    build_index,
+    clearance,
+    lift_to_clear,
+    move_clearance,
+    shank_clear,
+)
+from cam.plan.grid import ring_grid
+from cam.plan.link import link_passes, order_patches
+from cam.plan.region import Region, finishable_region
 from cam.plan.rings import ring_path
+from cam.spline.geometry import Patch, area_share, frame, machine_patches
+from cam.spline.knots import sub_surface
+from cam.spline.surface import BSplineSurface
 
 __all__ = ["GOUGE_TOL_MM", "PatchPlan", "Plan", "SetupPlan", "plan_job", "plan_patch"]
 
@@ -32,10 +43,6 @@ ROUNDING_MM = 0.5e-4 * 3 ** 0.5  # 4 decimals per axis move a ball centre by at 
 CORNER_SHARE = 0.97  # corner pockets are held a little under the side gaps, which then set the maximum
 MAX_REPLANS = 6
 BESIDE_SHARE = 0.1  # a strip beside a patch's planned rectangle is planned too when it holds this share of it
-
-
-class Unreachable(ValueError):
-    """No part of the patch can be machined from this setup."""
 
 
 @dataclass

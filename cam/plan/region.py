@@ -15,13 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.spline.surface import FOLD_CHECK_SAMPLES, BSplineSurface, fold_mask
-from cam.spline.knots import sub_curve
-from cam.spline.geometry import Patch, frame, principal_curvatures
-from cam.plan.grid import concave_message
+from cam.plan.errors import concave_message
 from cam.plan.scallop import fits_concave
+from cam.spline.geometry import Patch, frame, principal_curvatures
+from cam.spline.surface import FOLD_CHECK_SAMPLES, fold_mask
 
-__all__ = ["Region", "area_share", "finishable_region", "largest_clear_rectangle", "sub_surface", "surface_area"]
+__all__ = ["Region", "finishable_region", "largest_clear_rectangle"]
 
 
 @dataclass(frozen=True)
@@ -113,35 +112,3 @@ def _reason(patch: Patch, folded, hollow, degenerate, kmin, fr, r: float) -> str
         i = np.unravel_index(np.argmin(np.where(hollow, kmin, np.inf)), kmin.shape)
         parts.append(concave_message(-1.0 / kmin[i], r, fr.p[i]))
     return "; ".join(parts)
-
-
-def surface_area(surface: BSplineSurface, box: tuple[float, float, float, float] | None = None, *,
-                 samples: int = 64) -> float:
-    """Area (mm²) of the surface over its domain or the parameter rectangle `box` (midpoint rule)."""
-    (u0, u1), (v0, v1) = surface.domain
-    a, b, c, d = box if box is not None else (u0, u1, v0, v1)
-    t = (np.arange(samples) + 0.5) / samples
-    uu, vv = np.meshgrid(a + t * (b - a), c + t * (d - c), indexing="ij")
-    n = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
-    return float(np.linalg.norm(n, axis=-1).mean()) * (b - a) * (d - c)
-
-
-def area_share(surface: BSplineSurface, box: tuple[float, float, float, float], *, samples: int = 64) -> float:
-    """The share of the surface's area inside the parameter rectangle `box`."""
-    total = surface_area(surface, samples=samples)
-    return surface_area(surface, box, samples=samples) / total if total > 0 else 0.0
-
-
-def sub_surface(surface: BSplineSurface, box: tuple[float, float, float, float]) -> BSplineSurface:
-    """The same surface on the parameter rectangle `box` = (u0, u1, v0, v1), as its own B-spline
-    (exact: knot insertion), with the same parameters."""
-    from cam.spline.surface import make_bspline_surface
-
-    u0, u1, v0, v1 = box
-    cp = surface.control_points
-    nu, nv = cp.shape[:2]
-    ku, P = sub_curve(surface.knots_u, cp.reshape(nu, -1), u0, u1, degree=surface.degree[0])
-    P = P.reshape(len(P), nv, 3).transpose(1, 0, 2)
-    kv, Q = sub_curve(surface.knots_v, P.reshape(nv, -1), v0, v1, degree=surface.degree[1])
-    Q = Q.reshape(len(Q), -1, 3).transpose(1, 0, 2)
-    return make_bspline_surface(Q, ku, kv, degree=surface.degree)

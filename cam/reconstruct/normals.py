@@ -14,7 +14,11 @@ from typing import Callable
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+from scipy.sparse.csgraph import (
+    breadth_first_order,
+    connected_components,
+    minimum_spanning_tree,
+)
 from scipy.spatial import cKDTree
 
 __all__ = ["NormalsError", "check_normals", "estimate_normals", "orient_normals"]

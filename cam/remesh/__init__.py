@@ -5,6 +5,12 @@ checked candidate; `check` inspects and repairs a quad mesh; `creases` measures 
 input's creases the quad edges follow.
 """
 
-from cam.remesh.quadriflow import QuadriflowFailed, RemeshResult, boundary_loop_count, remesh_quads, run_quadriflow
+from cam.remesh.quadriflow import (
+    QuadriflowFailed,
+    RemeshResult,
+    boundary_loop_count,
+    remesh_quads,
+    run_quadriflow,
+)
 
 __all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cam.fit.crease import mesh_creases
+from cam.mesh.creases import mesh_creases
 
 __all__ = ["CreaseFollowing", "measure_crease_following"]
 

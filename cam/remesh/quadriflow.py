@@ -30,9 +30,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cam.mesh.closest import MeshIndex, closest_points, mesh_index
-from cam.remesh.creases import measure_crease_following
-from cam.remesh.check import inspect_quad_mesh, repair_quad_mesh
 from cam.mesh.quads import face_areas, face_normals
+from cam.remesh.check import inspect_quad_mesh, repair_quad_mesh
+from cam.remesh.creases import measure_crease_following
 
 __all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]
 

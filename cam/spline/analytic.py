@@ -10,7 +10,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import make_lsq_spline
 
-from cam.spline.surface import BSplineSurface, clamped_uniform_knots, make_bspline_surface
+from cam.spline.surface import (
+    BSplineSurface,
+    clamped_uniform_knots,
+    make_bspline_surface,
+)
 
 __all__ = ["cylinder", "fit_grid", "paraboloid", "plane", "saddle", "v_groove"]
 

@@ -9,26 +9,29 @@ towards the tool (convex), negative where it is hollow.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cam.spline.surface import BSplineSurface, make_bspline_surface
 
+if TYPE_CHECKING:
+    from cam.gcode.setup import Setup
+
 __all__ = [
     "Frame",
     "Patch",
     "across_iso_line",
+    "area_share",
     "frame",
     "iso_line_frame",
+    "machine_patches",
     "normal_curvature",
     "orientation_signs",
     "principal_curvatures",
+    "surface_area",
     "transform_surface",
 ]
-
-
-class NotPlannable(ValueError):
-    """The planner found no pass layout that keeps its bound on this patch (degenerate geometry)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,6 +84,12 @@ def transform_surface(surface: BSplineSurface, rotation: np.ndarray, translation
         raise ValueError(f"rotation is not a proper rotation matrix: {rot.tolist()}")
     cp = surface.control_points @ rot.T + tr
     return make_bspline_surface(cp, surface.knots_u, surface.knots_v, degree=surface.degree)
+
+
+def machine_patches(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarray, setup: Setup) -> list[Patch]:
+    """The surfaces moved into the setup's machine frame, with their outward signs."""
+    return [Patch(int(i), transform_surface(s, setup.rotation, setup.translation), float(g))
+            for i, s, g in zip(ids, surfaces, signs)]
 
 
 def frame(patch: Patch, u: np.ndarray, v: np.ndarray) -> Frame:
@@ -197,3 +206,20 @@ class SubSurface:
 
     def evaluate(self, u: np.ndarray, v: np.ndarray, *, du: int = 0, dv: int = 0) -> np.ndarray:
         return self.base.evaluate(u, v, du=du, dv=dv)
+
+
+def surface_area(surface: BSplineSurface, box: tuple[float, float, float, float] | None = None, *,
+                 samples: int = 64) -> float:
+    """Area (mm²) of the surface over its domain or the parameter rectangle `box` (midpoint rule)."""
+    (u0, u1), (v0, v1) = surface.domain
+    a, b, c, d = box if box is not None else (u0, u1, v0, v1)
+    t = (np.arange(samples) + 0.5) / samples
+    uu, vv = np.meshgrid(a + t * (b - a), c + t * (d - c), indexing="ij")
+    n = np.cross(surface.evaluate(uu, vv, du=1), surface.evaluate(uu, vv, dv=1))
+    return float(np.linalg.norm(n, axis=-1).mean()) * (b - a) * (d - c)
+
+
+def area_share(surface: BSplineSurface, box: tuple[float, float, float, float], *, samples: int = 64) -> float:
+    """The share of the surface's area inside the parameter rectangle `box`."""
+    total = surface_area(surface, samples=samples)
+    return surface_area(surface, box, samples=samples) / total if total > 0 else 0.0

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from cam.spline.surface import BSplineSurface, make_bspline_surface
+
 __all__ = ["lattice_knots", "insert_knot", "refine_knots", "merge_knots", "split_curve", "sub_curve", "join_curves",
-           "reverse_curve", "shift_curve", "refine_surface"]
+           "reverse_curve", "shift_curve", "refine_surface", "sub_surface"]
 
 
 def lattice_knots(start: float, end: float, spacing: float, *, degree: int = 3) -> np.ndarray:
@@ -147,3 +149,16 @@ def refine_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.
         kv, cpt = refine_knots(kv, np.swapaxes(cp, 0, 1), target_v, degree=degree[1])
         cp = np.swapaxes(cpt, 0, 1).copy()
     return ku, kv, cp
+
+
+def sub_surface(surface: BSplineSurface, box: tuple[float, float, float, float]) -> BSplineSurface:
+    """The same surface on the parameter rectangle `box` = (u0, u1, v0, v1), as its own B-spline
+    (exact: knot insertion), with the same parameters."""
+    u0, u1, v0, v1 = box
+    cp = surface.control_points
+    nu, nv = cp.shape[:2]
+    ku, P = sub_curve(surface.knots_u, cp.reshape(nu, -1), u0, u1, degree=surface.degree[0])
+    P = P.reshape(len(P), nv, 3).transpose(1, 0, 2)
+    kv, Q = sub_curve(surface.knots_v, P.reshape(nv, -1), v0, v1, degree=surface.degree[1])
+    Q = Q.reshape(len(Q), -1, 3).transpose(1, 0, 2)
+    return make_bspline_surface(Q, ku, kv, degree=surface.degree)

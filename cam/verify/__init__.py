@@ -1,5 +1,11 @@
-"""Verify: an independent measurement of a G-code program against the fitted surfaces (see measure.py)."""
+"""The `verify` stage: an independent measurement of what the G-code programs leave on the part.
 
-from cam.verify.measure import Measurement, heat_colors, measure_program
+`measure` sweeps the ball along the parsed program and measures scallop, gouge and reach; `sweep`
+holds the swept capsules; `claims` reads what each setup's program claims to finish. Nothing here
+imports the planner.
+"""
 
-__all__ = ["Measurement", "heat_colors", "measure_program"]
+from cam.verify.claims import claimed_patches
+from cam.verify.measure import Measurement, heat_colors, measure_program, pass_width_mm
+
+__all__ = ["Measurement", "claimed_patches", "heat_colors", "measure_program", "pass_width_mm"]

@@ -19,9 +19,9 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
-from cam.spline.surface import flipped_normals
 from cam.gcode.parser import ParsedProgram
 from cam.spline.geometry import Patch
+from cam.spline.surface import flipped_normals
 from cam.verify.sweep import Sweep
 
 __all__ = ["Measurement", "heat_colors", "measure_program"]
@@ -175,20 +175,26 @@ def _refine(patch: Patch, sweep: Sweep, solid: _Part, h: np.ndarray, ok: np.ndar
     return best, where
 
 
+def pass_width_mm(tool_radius_mm: float, target_mm: float) -> float:
+    """Width of the pass a ball of radius r leaves `target_mm` beside on a plane, 2·√(h(2r − h)) mm: verify's
+    unit of sample spacing (its own, so that it samples the same way whatever the planner does)."""
+    return float(2.0 * np.sqrt(target_mm * (2.0 * tool_radius_mm - target_mm)))
+
+
 def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Patch], *, tool_radius_mm: float,
-                    target_mm: float, interval_mm: float, samples_per_interval: int = 12, refine: bool = True,
+                    target_mm: float, samples_per_interval: int = 12, refine: bool = True,
                     reach_tol_mm: float = 1e-3, max_side: int = 1500, check_cancel=None) -> Measurement:
     """Measure the program on the `machined` patches; `part` is every patch (for reachability).
 
-    All patches in the machine frame of the program's setup, signs outward. interval_mm: the flat pass
-    interval at the target (the sample spacing is interval_mm / samples_per_interval).
+    All patches in the machine frame of the program's setup, signs outward. The sample spacing is
+    `pass_width_mm` / samples_per_interval.
     """
     t0 = time.perf_counter()
     r = float(tool_radius_mm)
     if samples_per_interval < 2:
         raise ValueError(f"samples_per_interval must be at least 2, got {samples_per_interval}")
     check_cancel = check_cancel or (lambda: None)
-    spacing = interval_mm / samples_per_interval
+    spacing = pass_width_mm(r, target_mm) / samples_per_interval
     z = np.array([0.0, 0.0, r])
     a, b = program.start + z, program.end + z
     reach = max(4 * target_mm, 0.25 * r)

@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.spline.surface import clamped_uniform_knots, make_bspline_surface, surface_from_json
+from cam.spline.surface import (
+    clamped_uniform_knots,
+    make_bspline_surface,
+    surface_from_json,
+)
 
 
 def _basis(knots, degree, i, t):

@@ -12,7 +12,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.denoise.mesh_tgv import PARAMETER_BOUNDS, DenoiseCanceled, DenoiseResult, denoise_mesh
+from cam.denoise.mesh_tgv import (
+    PARAMETER_BOUNDS,
+    DenoiseCanceled,
+    DenoiseResult,
+    denoise_mesh,
+)
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 

@@ -5,12 +5,26 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
-from cam.spline.basis import evaluate_curve, evaluate_surface, gram_matrix, surface_matrix, thin_plate_matrix
-from cam.mesh.closest import closest_on_triangles, closest_points, mesh_index
-from cam.spline.knots import (insert_knot, join_curves, merge_knots, refine_knots, refine_surface, reverse_curve,
-                           split_curve, sub_curve)
 from cam.fit.refine import split_spans
+from cam.mesh.closest import closest_on_triangles, closest_points, mesh_index
+from cam.spline.basis import (
+    evaluate_curve,
+    evaluate_surface,
+    gram_matrix,
+    surface_matrix,
+    thin_plate_matrix,
+)
+from cam.spline.knots import (
+    insert_knot,
+    join_curves,
+    merge_knots,
+    refine_knots,
+    refine_surface,
+    reverse_curve,
+    split_curve,
+    sub_curve,
+)
+from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
 KU = np.array([0, 0, 0, 0, 0.2, 0.5, 0.5, 1, 1, 1, 1.0])
 
@@ -160,8 +174,8 @@ def test_piece_boxes_bound_the_distance_to_the_piece():
 
 def test_foot_points_with_the_piece_bound_match_those_without():
     # The bound only skips runs that cannot win: every foot and distance is the same as trying all.
-    from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes
     from cam.fit.param import _newton
+    from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes
 
     ku, kv, cp = _bent_sheet()
     rng = np.random.default_rng(8)

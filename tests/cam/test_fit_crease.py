@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from cam.fit.crease import edge_keys, snap_points, vertex_positions
 from cam.mesh.closest import mesh_index
-from cam.fit.crease import closest_on_creases, edge_keys, mesh_creases, snap_points, vertex_positions
+from cam.mesh.creases import closest_on_creases, mesh_creases
 
 
 def _box_creases():

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from cam.spline.surface import surface_from_json
 from cam.io import write_ply_mesh
+from cam.spline.surface import surface_from_json
+from service.params import JobParams
 from tests.cam.test_fit_shapes import case, cylinder, quads_of, ridge
 from worker.context import StageContext, StageError
 from worker.stages.fit import run_fit
-from service.params import JobParams
 
 
 def _job(tmp_path, shape, *, blocks, extent=(30, 15), quads=(14, 7), fit=None, valid=None, sharp=False,

@@ -8,7 +8,15 @@ import pytest
 from cam.fit.boundary import side_params
 from cam.fit.patches import fit_patches
 from cam.mesh.closest import closest_points, mesh_index
-from tests.cam.test_fit_shapes import bump, case, cylinder, paraboloid, poly, ridge, triangle_mesh
+from tests.cam.test_fit_shapes import (
+    bump,
+    case,
+    cylinder,
+    paraboloid,
+    poly,
+    ridge,
+    triangle_mesh,
+)
 
 # Exact data only: the vertices of the mesh lie on the polynomial, its faces (the mesh terms, samples
 # inside faces) only near it.
@@ -247,8 +255,8 @@ def test_a_patch_one_quad_wide_is_within_tolerance_between_its_lattice_points():
 def test_a_fit_measures_and_draws_the_points_it_is_given_besides_its_lattice():
     # Peaks found between the lattice's points are handed to the refit after knot insertion; a fit
     # that did not measure them judged itself on the lattice alone and kept its start.
-    from cam.spline.basis import evaluate_surface
     from cam.fit.solve import fit_surface
+    from cam.spline.basis import evaluate_surface
 
     L = 4.0
     MV, MF = triangle_mesh(bump(1.0, L / 2, L / 2, 0.4), np.linspace(0, L, 41), np.linspace(0, L, 41))
@@ -377,8 +385,8 @@ def test_inside_fixed_borders_a_surface_past_a_crease_is_drawn_back_onto_it():
     # where its closest mesh point is on the ridge itself, the mesh does not lie along a triangle's
     # normal from it, and the lattice left those points out. With mesh_edges they count, drawn
     # along the direction from the ridge, and so do the same distances.
-    from cam.spline.knots import lattice_knots
     from cam.fit.solve import _surface_grid
+    from cam.spline.knots import lattice_knots
 
     MV, MF = triangle_mesh(ridge(10.0, 0.8), np.linspace(0, 20, 81), np.linspace(0, 10, 41))
     mesh = mesh_index(MV, MF)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from cam.gcode import DIALECTS, GCodeError, parse_program, write_program
-from cam.spline import analytic
-from cam.plan.access import Setup
-from cam.plan.link import FEED, PLUNGE, RAPID, MoveList
+from cam.gcode.moves import FEED, PLUNGE, RAPID, MoveList
+from cam.gcode.setup import Setup
 from cam.plan.plan import plan_job
+from cam.spline import analytic
 
 HEADER = {"cloud2cnc finishing program": "job test-job, setup 1, patches 1", "tool": "ball end mill radius 3 mm, T1",
           "target scallop": "0.1600 mm", "certified scallop bound": "0.159000 mm", "units": "mm", "dialect": "x",

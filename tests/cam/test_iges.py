@@ -7,8 +7,8 @@ from datetime import datetime, timezone
 import numpy as np
 import pytest
 
-from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 from cam.io.iges import iges_bytes, write_iges
+from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
 WHEN = datetime(2024, 5, 1, 12, 30, 0, tzinfo=timezone.utc)
 

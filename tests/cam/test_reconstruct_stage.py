@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from cam.io import read_ply, write_ply_points
+from service.params import JobParams
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 from worker.stages.reconstruct import run_reconstruct
-from service.params import JobParams
 
 SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 FAST = {"iterations": 100, "batch_size": 2048, "grid_cells": 48, "resolution": 96, "seed": 3}

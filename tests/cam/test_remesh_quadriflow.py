@@ -6,14 +6,19 @@ import numpy as np
 import pytest
 import trimesh
 
-from cam.remesh.check import inspect_quad_mesh
 from cam.io.quads import read_quad_obj
 from cam.mesh.quads import face_areas, face_normals
+from cam.remesh.check import inspect_quad_mesh
 from tests.conftest import SHARED_DATA
 
 pytest.importorskip("pyQuadriFlow")
 
-from cam.remesh.quadriflow import QuadriflowFailed, boundary_loop_count, remesh_quads, run_quadriflow
+from cam.remesh.quadriflow import (
+    QuadriflowFailed,
+    boundary_loop_count,
+    remesh_quads,
+    run_quadriflow,
+)
 from service.params import JobParams
 
 

@@ -9,14 +9,14 @@ import pytest
 
 from cam.io.quads import read_quad_obj, write_quad_obj
 from cam.mesh.quads import face_normals, quad_topology
-from tests.quadshapes import quad_box, quad_capped_cylinder, quad_grid, quad_torus
 from cam.segment import segment_quads
 from cam.segment.clip import CutState, complete_cuts, patch_labels
 from cam.segment.graph import kruskal
 from cam.segment.patches import grid_of_patch
 from cam.segment.traces import straight_continuation, trace_line
-from tests.conftest import SHARED_DATA
 from service.params import JobParams
+from tests.conftest import SHARED_DATA
+from tests.quadshapes import quad_box, quad_capped_cylinder, quad_grid, quad_torus
 
 
 def check_partition(v, f, seg):

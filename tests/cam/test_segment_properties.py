@@ -9,10 +9,15 @@ from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
 from cam.mesh.quads import quad_topology
-from tests.quadshapes import quad_box, quad_capped_cylinder, quad_torus, quads_from_triangles
 from cam.segment import segment_quads
 from cam.segment.traces import straight_continuation, trace_line
 from tests.cam.test_segment import check_partition
+from tests.quadshapes import (
+    quad_box,
+    quad_capped_cylinder,
+    quad_torus,
+    quads_from_triangles,
+)
 
 FAST = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.spline import analytic
-from cam.plan.access import Setup
-from cam.spline.geometry import Patch, frame, principal_curvatures
-from cam.plan.grid import TooConcave, check_concavity, ring_grid
-from cam.plan.plan import _largest_rectangle, exclude_points, plan_job, plan_patch
+from cam.gcode.setup import Setup
 from cam.plan.edge import edge_scallop, ray_capsule_entry
+from cam.plan.errors import TooConcave
+from cam.plan.grid import check_concavity, ring_grid
+from cam.plan.plan import _largest_rectangle, exclude_points, plan_job, plan_patch
 from cam.plan.rings import corner_scallop, ring_path
 from cam.plan.scallop import flat_spacing
+from cam.spline import analytic
+from cam.spline.geometry import Patch, frame, principal_curvatures
 
 EYE = [Setup(1, np.eye(3), np.zeros(3))]
 
@@ -162,9 +163,13 @@ def test_largest_clear_rectangle_against_every_rectangle():
 
 
 def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
-    from cam.spline.surface import clamped_uniform_knots, find_folds, make_bspline_surface
-    from cam.spline.geometry import Patch
     from cam.plan.region import finishable_region
+    from cam.spline.geometry import Patch
+    from cam.spline.surface import (
+        clamped_uniform_knots,
+        find_folds,
+        make_bspline_surface,
+    )
 
     g = np.linspace(0, 10, 8)
     X, Y = np.meshgrid(g, g, indexing="ij")
@@ -188,8 +193,13 @@ def test_a_fold_narrower_than_the_fits_own_grid_is_reported_where_the_planner_fi
     # A plane with one of 31 control columns pulled back two column steps: a fold 0.3 mm wide, between
     # the samples of the 33 x 33 grid the fit compares its steps on. The fit's report uses the grid
     # the planner checks, so surfaces.json does not call a surface clean that the planner trims.
-    from cam.spline.surface import FOLD_CHECK_SAMPLES, clamped_uniform_knots, find_folds, make_bspline_surface
     from cam.plan.region import finishable_region
+    from cam.spline.surface import (
+        FOLD_CHECK_SAMPLES,
+        clamped_uniform_knots,
+        find_folds,
+        make_bspline_surface,
+    )
 
     g = np.linspace(0, 10, 31)
     X, Y = np.meshgrid(g, np.linspace(0, 10, 5), indexing="ij")
@@ -203,8 +213,8 @@ def test_a_fold_narrower_than_the_fits_own_grid_is_reported_where_the_planner_fi
 
 
 def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
-    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
     from cam.plan.region import finishable_region
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
     g = np.linspace(0, 10, 6)
     X, Y = np.meshgrid(g, g, indexing="ij")
@@ -222,7 +232,7 @@ def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
 
 def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch):
     import cam.plan.plan as plan_module
-    from cam.spline.geometry import NotPlannable
+    from cam.plan.errors import NotPlannable
 
     real = plan_module.plan_patch
 
@@ -432,13 +442,13 @@ def test_a_band_the_ball_cannot_reach_across_the_middle_leaves_both_sides_machin
     assert [q["region"] for q in claims] == [list(first.region), list(second.region)]
     assert sum(q["kept"] for q in claims) == pytest.approx((20 - 6) / 20, abs=0.02)
     from cam.gcode import parse_program, write_program
-    from cam.plan.region import sub_surface
+    from cam.spline.knots import sub_surface
     from cam.verify import measure_program
 
     sp = plan.setups[0]
     machined = [Patch(1, sub_surface(floor, tuple(q["region"]))) for q in claims]
     m = measure_program(parse_program(write_program(sp.moves, header={})), machined, [Patch(1, floor), Patch(2, rib)],
-                        tool_radius_mm=3.0, target_mm=0.16, interval_mm=float(flat_spacing(0.16, 3.0)))
+                        tool_radius_mm=3.0, target_mm=0.16)
     assert m.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= 0.16
     assert m.report["fraction_never_reached"] == 0 and m.report["max_gouge_mm"] < 1e-3
 
@@ -458,8 +468,8 @@ def test_closest_points_cross_a_c0_line():
     # A sheet whose u = 1/2 iso-line is a C0 line (its v = 0 border turns up by 76 degrees there;
     # each half is bilinear, so its net is the map at the Greville abscissae). Points above it by
     # known heights must get exactly those distances whichever side Newton starts on.
-    from cam.spline.surface import make_bspline_surface
     from cam.plan.gouge import _project
+    from cam.spline.surface import make_bspline_surface
 
     ku = np.array([0, 0, 0, 0, 0.5, 0.5, 0.5, 1, 1, 1, 1.0])
     kv = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
@@ -483,8 +493,8 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     # samples), concave radius just under the 3 mm ball at its bottom: the ball reaches every
     # contact (no lift), the concavity check finds the hollow, and the plan gives up the strip
     # holding it and finishes the rest, instead of losing the patch.
-    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
     from cam.plan.gouge import build_index
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
     nu, nv = 161, 9
     ku, kv = clamped_uniform_knots(nu), clamped_uniform_knots(nv)
@@ -516,8 +526,8 @@ def test_a_hollow_between_the_concavity_samples_is_reported_where_a_ring_meets_i
     # (0.219 mm apart): the grid misses it. A ring's line that runs along the trough, or the next line
     # a step lands on, has no scallop relation there; the step names the hollow and where it lies on
     # the line (so plan_patch can cut it out), instead of giving up the patch as degenerate.
-    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
     from cam.plan.grid import side_step
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
     nu, nv, width, height = 9, 201, 16.0, 7.0
     ku, kv = clamped_uniform_knots(nu), clamped_uniform_knots(nv)

@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 
 from cam.gcode import parse_program, write_program
-from cam.spline import analytic
-from cam.plan.access import Setup
-from cam.spline.geometry import Patch
+from cam.gcode.setup import Setup
 from cam.plan.plan import plan_job
-from cam.plan.scallop import flat_spacing
-from cam.plan.region import sub_surface
+from cam.spline import analytic
+from cam.spline.geometry import Patch
+from cam.spline.knots import sub_surface
 from cam.verify import measure_program
 from cam.verify.sweep import Sweep
 
@@ -145,8 +144,7 @@ def run(surfaces, *, chord_fraction=0.002, strategy="adaptive"):
     prog = parse_program(write_program(sp.moves, header={"certified scallop bound": f"{plan.certified_scallop_mm:.6f}"}))
     patches = [Patch(i, s) for i, s in zip(ids, surfaces)]
     machined = [p for p in patches if p.id in {pp.patch for pp in sp.patches}]
-    m = measure_program(prog, machined, patches, tool_radius_mm=R_TOOL, target_mm=TARGET,
-                        interval_mm=float(flat_spacing(TARGET, R_TOOL)))
+    m = measure_program(prog, machined, patches, tool_radius_mm=R_TOOL, target_mm=TARGET)
     return plan, prog, m
 
 
@@ -177,7 +175,7 @@ def test_planted_gouge_is_caught():
     lines[end:end] = ["G0 X5.0000 Y5.0000 Z10.0000", "G1 Z-0.4000 F300.0", "G1 X15.0000 Y11.0000", "G0 Z10.0000"]
     bad = parse_program("\n".join(lines) + "\n")
     m2 = measure_program(bad, [Patch(1, analytic.plane())], [Patch(1, analytic.plane())], tool_radius_mm=R_TOOL,
-                         target_mm=TARGET, interval_mm=float(flat_spacing(TARGET, R_TOOL)))
+                         target_mm=TARGET)
     assert m2.report["max_gouge_mm"] == pytest.approx(0.4, abs=0.02)
 
 
@@ -190,8 +188,7 @@ def test_hollow_edge_between_patches_is_not_gouged():
     # edge (still reachable within verify's tolerance) the first ring, half an interval inside, leaves more.
     part = [Patch(1, left), Patch(2, right)]
     claims = [Patch(p.patch, sub_surface(part[p.patch - 1].surface, p.region)) for p in plan.setups[0].patches]
-    mc = measure_program(prog, claims, part, tool_radius_mm=R_TOOL, target_mm=TARGET,
-                         interval_mm=float(flat_spacing(TARGET, R_TOOL)))
+    mc = measure_program(prog, claims, part, tool_radius_mm=R_TOOL, target_mm=TARGET)
     assert mc.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= TARGET
     assert mc.report["fraction_never_reached"] == 0
     # The rings start where the ball stops touching the other patch: each region is trimmed at the edge.
@@ -221,8 +218,7 @@ def test_overhang_over_a_patch_is_left_out_of_its_claim(start, monkeypatch):
     prog = parse_program(write_program(sp.moves, header={}))
     part = [Patch(1, floor), Patch(2, plate)]
     machined = [Patch(p.patch, sub_surface(part[p.patch - 1].surface, p.region)) for p in sp.patches]
-    m = measure_program(prog, machined, part, tool_radius_mm=R_TOOL, target_mm=TARGET,
-                        interval_mm=float(flat_spacing(TARGET, R_TOOL)))
+    m = measure_program(prog, machined, part, tool_radius_mm=R_TOOL, target_mm=TARGET)
     assert m.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= TARGET
     assert m.report["fraction_never_reached"] == 0
     assert m.report["max_gouge_mm"] < 1e-3 and m.report["max_rapid_gouge_mm"] < 1e-3

@@ -9,8 +9,8 @@ import pytest
 
 from cam.io import read_input
 from cam.spline import analytic
-from worker.context import StageContext, StageError
 from service.params import JobParams
+from worker.context import StageContext, StageError
 
 
 def _ctx(tmp_path, stage, inputs, dialect="linuxcnc"):

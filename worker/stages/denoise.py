@@ -7,7 +7,13 @@ from pathlib import Path
 
 from cam.denoise.mesh_tgv import DenoiseCanceled, denoise_mesh
 from cam.io import read_ply, write_ply_mesh
-from worker.context import StageCanceled, StageContext, StageError, StageSkipped, write_json
+from worker.context import (
+    StageCanceled,
+    StageContext,
+    StageError,
+    StageSkipped,
+    write_json,
+)
 
 # JobParams.denoise fields passed to the core under the same names.
 _CORE_OPTIONS = ("alpha0", "alpha1", "penalty0", "penalty1", "vertex_iterations", "flip_repair_rounds",

@@ -14,6 +14,7 @@ from cam.io.iges import write_iges
 from cam.io.quads import read_quad_obj
 from worker.context import StageContext, StageError, write_json
 
+
 def run_fit(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params["fit"]
     tolerance_mm = fit_tolerance_mm(ctx.params)

@@ -4,60 +4,16 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from cam.spline.surface import surface_from_json
 from cam.gcode import GENERATOR, write_program
+from cam.io import read_ply, read_setups, read_surfaces, write_json
 from cam.io.atomic import atomic_write
-from cam.plan.access import Setup
-from cam.spline.geometry import orientation_signs
 from cam.plan.plan import Plan, plan_job
-from worker.context import StageContext, StageError, write_json
-
-
-def load_surfaces(path: Path) -> tuple[list[int], list]:
-    """Patch ids and surfaces of a `surfaces.json`; StageError naming the bad entry."""
-    doc = json.loads(path.read_text())
-    ids, surfaces = [], []
-    for k, entry in enumerate(doc.get("surfaces", [])):
-        try:
-            surfaces.append(surface_from_json(entry))
-            ids.append(int(entry.get("patch", k)))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise StageError(f"surfaces.json entry {k} is not a valid B-spline surface: {exc}") from exc
-    if not surfaces:
-        raise StageError("surfaces.json holds no surfaces: nothing to machine")
-    return ids, surfaces
-
-
-def load_setups(path: Path) -> tuple[dict[str, Any], list[Setup]]:
-    doc = json.loads(path.read_text())
-    setups = []
-    for k, entry in enumerate(doc.get("setups", [])):
-        try:
-            setups.append(Setup(id=int(entry.get("id", k + 1)), rotation=np.asarray(entry["rotation"], float).reshape(3, 3),
-                                translation=np.asarray(entry["translation"], float).reshape(3)))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise StageError(f"setup.json setup {k} needs a 3x3 rotation and a translation: {exc}") from exc
-    if not setups:
-        raise StageError("setup.json holds no setup")
-    return doc, setups
-
-
-def outward_signs(ctx: StageContext, surfaces: list, first: Setup) -> np.ndarray:
-    """Orientation from the mesh when the job has one, else each patch seen from the first setup's tool axis."""
-    mesh = ctx.inputs.get("mesh.ply")
-    if mesh is not None:
-        from cam.io import read_input
-
-        data = read_input(mesh)
-        if data.faces is not None and len(data.faces):
-            return orientation_signs(surfaces, mesh_vertices=data.points, mesh_faces=data.faces)
-    return orientation_signs(surfaces, up=first.rotation.T @ np.array([0.0, 0.0, 1.0]))
+from cam.spline.geometry import orientation_signs
+from worker.context import StageContext, StageError
 
 
 def _r(x, d=5):
@@ -81,9 +37,15 @@ def header(ctx: StageContext, plan: Plan, setup_id: int, patches: list[int], dia
 
 def run_plan(ctx: StageContext) -> dict[str, Path]:
     tool, tp = ctx.params["tool"], ctx.params["toolpath"]
-    ids, surfaces = load_surfaces(ctx.inputs["surfaces.json"])
-    setup_doc, setups = load_setups(ctx.inputs["setup.json"])
-    signs = outward_signs(ctx, surfaces, setups[0])
+    ids, surfaces = ctx.read("surfaces.json", read_surfaces)
+    if not surfaces:
+        raise StageError("surfaces.json holds no surfaces: nothing to machine")
+    setup_doc, setups = ctx.read("setup.json", read_setups)
+    if not setups:
+        raise StageError("setup.json holds no setup")
+    mesh = ctx.read("mesh.ply", read_ply) if "mesh.ply" in ctx.inputs else None
+    signs = orientation_signs(surfaces, mesh_vertices=None if mesh is None else mesh.points,
+                              mesh_faces=None if mesh is None else mesh.faces, up=setups[0].tool_axis_part)
     try:
         plan = plan_job(ids, surfaces, setups, tool_radius_mm=tool["radius_mm"], scallop_height_mm=tp["scallop_height_mm"],
                         chord_fraction=tp["chord_fraction"], samples_per_line=tp["samples_per_line"],

@@ -9,6 +9,7 @@ from cam.io.quads import write_quad_obj
 from cam.remesh.quadriflow import remesh_quads
 from worker.context import StageContext, StageError, write_json
 
+
 def run_remesh(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params["remesh"]
     ctx.progress(0.02, "reading the mesh")

@@ -7,14 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from cam.gcode import GCodeError, parse_program
+from cam.io import ReadError, read_ply, read_setups, read_surfaces, write_json
 from cam.io.atomic import atomic_write
-from cam.plan.access import machine_patches
-from cam.spline.geometry import Patch
-from cam.plan.region import sub_surface
-from cam.plan.scallop import flat_spacing
-from cam.verify import heat_colors, measure_program
-from worker.context import StageContext, StageError, write_json
-from worker.stages.plan import load_setups, load_surfaces, outward_signs
+from cam.spline.geometry import machine_patches, orientation_signs
+from cam.verify import claimed_patches, heat_colors, measure_program
+from worker.context import StageContext, StageError
 
 GOUGE_LIMIT_MM = 1e-3
 
@@ -39,9 +36,14 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
     r = float(ctx.params["tool"]["radius_mm"])
     tp = ctx.params["toolpath"]
     target = float(tp["scallop_height_mm"])
-    ids, surfaces = load_surfaces(ctx.inputs["surfaces.json"])
-    doc, setups = load_setups(ctx.inputs["setup.json"])
-    signs = outward_signs(ctx, surfaces, setups[0])
+    ids, surfaces = ctx.read("surfaces.json", read_surfaces)
+    doc, setups = ctx.read("setup.json", read_setups)
+    if not surfaces or not setups:
+        raise StageError("surfaces.json holds no surfaces or setup.json no setup: nothing to verify")
+    mesh = ctx.read("mesh.ply", read_ply) if "mesh.ply" in ctx.inputs else None
+    signs = orientation_signs(surfaces, mesh_vertices=None if mesh is None else mesh.points,
+                              mesh_faces=None if mesh is None else mesh.faces,
+                              up=setups[0].tool_axis_part)
     reports, verts, faces, values = [], [], [], []
     for k, (entry, setup) in enumerate(zip(doc["setups"], setups)):
         name = entry.get("program")
@@ -56,21 +58,12 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
         certified = program.header_value("certified scallop bound")
         certified = float(certified.split()[0]) if certified else None
         part = machine_patches(ids, surfaces, signs, setup)
-        machined = [p for p in part if p.id in set(entry["patches"])]
-        # A patch the planner finishes only in part is held to its claims, on those rectangles alone.
         try:
-            claims: dict[int, list] = {}
-            for q in entry.get("partial") or []:
-                claims.setdefault(int(q["patch"]), []).append(tuple(float(x) for x in q["region"]))
-            machined = [q for p in machined for q in
-                        ([Patch(p.id, sub_surface(p.surface, box), p.sign) for box in claims[p.id]]
-                         if p.id in claims else [p])]
-        except (KeyError, TypeError, ValueError) as exc:
-            raise StageError(f"setup {setup.id} in setup.json has a 'partial' entry that is not a parameter "
-                             f"rectangle inside its patch: {exc}") from exc
+            machined = claimed_patches(entry, part)
+        except ReadError as exc:
+            raise StageError(str(exc)) from exc
         ctx.progress(0.05 + 0.9 * k / len(setups), f"measuring {name}")
         m = measure_program(program, machined, part, tool_radius_mm=r, target_mm=target,
-                            interval_mm=float(flat_spacing(target, r)),
                             samples_per_interval=tp["verify_samples_per_interval"],
                             check_cancel=ctx.check_cancel)
         reports.append({"setup": setup.id, "program": name, "certified_scallop_mm": certified, **m.report})

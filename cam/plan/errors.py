@@ -1,0 +1,40 @@
+"""What the planner reports instead of a plan: a patch it cannot finish, and why."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SMALLEST_BALL_RADIUS_MM", "NotPlannable", "TooConcave", "Unreachable", "concave_message"]
+
+
+class NotPlannable(ValueError):
+    """The planner found no pass layout that keeps its bound on this patch (degenerate geometry)."""
+
+
+class Unreachable(ValueError):
+    """No part of the patch can be machined from this setup."""
+
+
+class TooConcave(ValueError):
+    """The patch holds a concave radius of curvature not larger than the tool radius."""
+
+    def __init__(self, message: str, *, radius_mm: float, point: np.ndarray, uv: np.ndarray | None = None) -> None:
+        super().__init__(message)
+        self.radius_mm = radius_mm
+        self.point = point
+        self.uv = np.zeros((0, 2)) if uv is None else uv  # float (k, 2): every sample found too concave
+
+
+# The smallest ball end mills sold are 0.1 mm across: a hollow tighter than that is no feature a ball can
+# be bought for, and on a fitted surface it is far more often a ripple of the fit than of the part.
+SMALLEST_BALL_RADIUS_MM = 0.05
+
+
+def concave_message(radius_mm: float, tool_radius_mm: float, point: np.ndarray) -> str:
+    """What a user reads about a hollow the ball does not fit."""
+    where = (f"concave radius of curvature {radius_mm:.3f} mm is not larger than the tool radius "
+             f"{tool_radius_mm:g} mm near {np.round(point, 3).tolist()}")
+    if radius_mm < SMALLEST_BALL_RADIUS_MM:
+        return (f"{where}; no ball end mill is that small: if the part has no such corner there, the fitted "
+                "surface ripples (surfaces.json gives each patch's fit error)")
+    return f"{where}; use a smaller ball"
