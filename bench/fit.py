@@ -47,7 +47,7 @@ def run_stage(run, name: str, work: Path, inputs: dict[str, Path], params: dict)
 
 def job_params() -> dict:
     try:
-        from service.params import JobParams
+        from core.params import JobParams
 
         return JobParams().model_dump()
     except Exception:  # the bench runs the stages' own defaults when JobParams lacks a group

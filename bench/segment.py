@@ -41,7 +41,7 @@ def pipeline_mesh(src: Path, work: Path):
     sampled on the clean mesh x10; returns the mesh and the seconds those stages took."""
     import trimesh
 
-    from service.config import Settings
+    from core.config import Settings
     from worker.local import run_local
 
     clean = trimesh.load(src, process=False)

@@ -6,7 +6,7 @@ Run from the repository root:
 
 What it does
 ------------
-1. Starts the API alone (`python -m service.cli serve --no-worker`, i.e. `cloud2cnc serve --no-worker`) as a
+1. Starts the API alone (`python -m cloud2cnc.cli serve --no-worker`, i.e. `cloud2cnc serve --no-worker`) as a
    separate uvicorn process on 127.0.0.1 with a temporary data directory (SQLite, filesystem:// broker). No
    worker runs, so created jobs stay `queued`: the numbers are the API's own cost, not the pipeline's.
 2. Drives it with N concurrent clients (threads with http.client, one keep-alive connection each):
@@ -73,7 +73,7 @@ class Server:
         env.update(env_extra or {})
         self._log = open(self.log_path, "wb")  # noqa: SIM115 — closed in stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", "serve", "--no-worker", "--host", "127.0.0.1",
+            [sys.executable, "-m", "cloud2cnc.cli", "serve", "--no-worker", "--host", "127.0.0.1",
              "--port", str(self.port), "--data-dir", str(self.data_dir), "--log-level", "warning"],
             cwd=REPO, env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
         self.ps = psutil.Process(self.proc.pid)

@@ -115,7 +115,7 @@ def end_to_end(name: str) -> dict | None:
     import trimesh
 
     from cam.io import read_surfaces
-    from service.config import Settings
+    from core.config import Settings
     from worker.local import run_local
 
     src = DATA / f"{name}_gt.obj"
@@ -159,7 +159,7 @@ def fitted_part(name: str, tmp: Path):
     import trimesh
 
     from cam.io import read_input, read_setups, read_surfaces
-    from service.config import Settings
+    from core.config import Settings
     from worker.local import run_local
 
     src = DATA / f"{name}_gt.obj"

@@ -1,5 +1,5 @@
-"""cloud2cnc job service: API, job store, artifact store and queue client.
+"""cloud2cnc HTTP API: FastAPI routes, request and response schemas, problem details, the dashboard.
 
-Nothing importable from this package at module level pulls in FastAPI,
-torch or the geometry stack, so the worker can share the job store.
+The job state it reads and changes lives in `core`; it never imports `worker`, torch or the
+geometry stack.
 """

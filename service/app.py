@@ -8,10 +8,10 @@ from contextlib import asynccontextmanager
 from fastapi import Depends, FastAPI
 
 from service import problems
-from service.config import Settings, get_settings
-from service.db import get_engine
+from core.config import Settings, get_settings
+from core.db import get_engine
 from service.deps import require_api_key
-from service.pipeline import load_stages
+from core.stages import load_stages
 from service.reconciler import Reconciler
 from service.routes import artifacts, dashboard, health, jobs
 

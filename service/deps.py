@@ -9,11 +9,11 @@ from celery import Celery
 from fastapi import Depends, Header
 from sqlalchemy.orm import Session
 
-from service.config import Settings, get_settings
-from service.db import get_sessionmaker
+from core.config import Settings, get_settings
+from core.db import get_sessionmaker
 from service.problems import Problem
-from service.queue import get_celery
-from service.store import ArtifactStore
+from core.queue import get_celery
+from core.store import ArtifactStore
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

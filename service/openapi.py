@@ -9,7 +9,7 @@ from typing import Any
 
 def openapi_schema() -> dict[str, Any]:
     from service.app import create_app
-    from service.config import Settings
+    from core.config import Settings
 
     return create_app(Settings(data_dir=Path("unused")), reconcile=False).openapi()
 

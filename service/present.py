@@ -5,8 +5,8 @@ from __future__ import annotations
 import datetime as dt
 from pathlib import PurePath
 
-from service.db import Artifact, Job, Stage
-from service.jobs import job_progress
+from core.db import Artifact, Job, Stage
+from core.jobs import job_progress
 from service.schemas import ArtifactOut, InputOut, JobOut, StageOut
 
 MEDIA_TYPES = {

@@ -9,10 +9,10 @@ from __future__ import annotations
 import logging
 import threading
 
-from service import jobs
-from service.config import Settings
-from service.db import Job, get_sessionmaker
-from service.queue import enqueue_stages, get_celery
+from core import jobs
+from core.config import Settings
+from core.db import Job, get_sessionmaker
+from core.queue import enqueue_stages, get_celery
 
 log = logging.getLogger(__name__)
 

@@ -38,7 +38,7 @@ class Backend:
     cleanup: list = field(default_factory=list)
 
     def settings(self):
-        from service.config import Settings
+        from core.config import Settings
 
         return Settings(**{k: v for k, v in self.env.items()})
 
@@ -52,7 +52,7 @@ def _postgres_database() -> tuple[str, callable]:
         conn.execute(text(f'CREATE DATABASE "{name}"'))
 
     def drop() -> None:
-        from service.db import get_engine
+        from core.db import get_engine
 
         url = PG_ADMIN.rsplit("/", 1)[0] + "/" + name
         get_engine(url).dispose()
@@ -106,7 +106,7 @@ class Worker:
     def __init__(self, env: dict[str, str], log: Path) -> None:
         full = dict(os.environ, **env, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
         self.log = log
-        self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--log-level", "info"],
+        self.proc = subprocess.Popen([sys.executable, "-m", "cloud2cnc.cli", "worker", "--log-level", "info"],
                                      cwd=ROOT, env=full, stdout=open(log, "ab"), stderr=subprocess.STDOUT,
                                      start_new_session=True)
 

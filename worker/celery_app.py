@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import os
 
-from service.config import get_settings
-from service.queue import get_celery
+from core.config import get_settings
+from core.queue import get_celery
 
 settings = get_settings()
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):

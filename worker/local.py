@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from service.config import Settings
-from service.params import JobParams
-from service.pipeline import load_stages, stage_names_until
+from core.config import Settings
+from core.params import JobParams
+from core.stages import load_stages, stage_names_until
 from worker.context import (
     StageCanceled,
     StageContext,
@@ -22,7 +22,7 @@ from worker.context import (
     StageSkipped,
     write_json,
 )
-from worker.runner import _implementation
+from worker.stages import implementation
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
                            settings={k: getattr(settings, k) for k in spec.settings}, progress=bar.update)
         t0 = time.perf_counter()
         try:
-            outputs = _implementation(spec)(ctx)
+            outputs = implementation(spec.name, settings.stage_plugins)(ctx)
         except StageSkipped as exc:
             for name, path in exc.outputs.items():
                 Path(path).replace(out_dir / name)  # passed on (denoise disabled: mesh.ply)

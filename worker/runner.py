@@ -7,7 +7,6 @@ the implementation in a scratch folder, store the outputs, record the outcome.
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import shutil
@@ -21,12 +20,13 @@ from typing import Any, Callable
 
 from sqlalchemy import select
 
-from service import jobs
-from service.config import Settings
-from service.db import Artifact, Job, get_sessionmaker, utcnow
-from service.pipeline import StageSpec, cache_key, load_stages, time_limit_s
-from service.store import ArtifactStore
+from core import jobs
+from core.config import Settings
+from core.db import Artifact, Job, get_sessionmaker, utcnow
+from core.stages import StageSpec, cache_key, code_digest, load_stages, time_limit_s
+from core.store import ArtifactStore
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
+from worker.stages import implementation
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +114,8 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
         return Outcome.STOP
 
     stage_settings = {k: getattr(settings, k) for k in spec.settings}
-    key = cache_key(spec, params, available, stage_settings)
+    run = implementation(stage_name, settings.stage_plugins)
+    key = cache_key(spec, params, available, stage_settings, code=code_digest(run.__module__))
 
     with Session.begin() as session:
         hit = jobs.lookup_cache(session, key)
@@ -171,7 +172,7 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
     try:
         with _Heartbeat(renew, settings.stage_lease_s / 4) as heartbeat:
             try:
-                outputs = _implementation(spec)(ctx)
+                outputs = run(ctx)
             except StageSkipped as exc:
                 ok = _finish_keeping(Session, store, spec, job_id, claim.token, exc.outputs,
                                      status="skipped", message=str(exc) or None)
@@ -241,11 +242,6 @@ def _store_outputs(store: ArtifactStore, spec: StageSpec, outputs: dict[str, Pat
 def _add_artifacts(session: Any, job_id: str, stage: str, stored: dict[str, dict[str, Any]]) -> None:
     for name, o in stored.items():
         jobs.add_artifact(session, job_id, name=name, stage=stage, sha256=o["sha256"], size=o["size"])
-
-
-def _implementation(spec: StageSpec) -> Callable[[StageContext], dict[str, Path]]:
-    module, _, func = spec.run.partition(":")
-    return getattr(importlib.import_module(module), func)
 
 
 def _drop_unreferenced(Session: Any, store: ArtifactStore, hashes: list[str]) -> None:

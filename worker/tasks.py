@@ -5,8 +5,8 @@ from __future__ import annotations
 from celery import shared_task
 from celery.exceptions import Ignore
 
-from service.config import get_settings
-from service.queue import TASK_NAME
+from core.config import get_settings
+from core.queue import TASK_NAME
 from worker.runner import Outcome, run_stage
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 
-from service.params import JobParams
+from core.params import JobParams
 from service.problems import Problem
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"

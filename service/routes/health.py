@@ -8,7 +8,7 @@ from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 from sqlalchemy import text
 
-from service.db import get_engine
+from core.db import get_engine
 from service.deps import QueueDep, SettingsDep
 from service.problems import problem_response
 from service.schemas import Health, ProblemOut

@@ -19,16 +19,16 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from cam.io.formats import FORMAT_EXTENSIONS, describe_unsupported, sniff_format
-from service import jobs as jobstore
-from service.db import IdempotencyKey, Job, get_sessionmaker
+from core import jobs as jobstore
+from core.db import IdempotencyKey, Job, get_sessionmaker
 from service.deps import QueueDep, SessionDep, SettingsDep, StoreDep
-from service.params import JobParams, merge_params
-from service.pipeline import load_stages
+from core.params import JobParams, merge_params
+from core.stages import load_stages
 from service.present import job_out
 from service.problems import Problem, validation_errors
-from service.queue import enqueue_stages, revoke
+from core.queue import enqueue_stages, revoke
 from service.schemas import JobList, JobOut, JobStatus, ProblemOut, RerunIn
-from service.store import ArtifactStore
+from core.store import ArtifactStore
 from service.upload import Upload, receive_upload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])

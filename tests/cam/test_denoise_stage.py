@@ -12,7 +12,7 @@ import trimesh
 
 from cam.denoise.mesh_tgv import PARAMETER_BOUNDS
 from cam.io import read_ply, write_ply_mesh
-from service.params import DenoiseParams, JobParams
+from core.params import DenoiseParams, JobParams
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 from worker.stages.denoise import run_denoise
 

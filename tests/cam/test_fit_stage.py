@@ -9,7 +9,7 @@ import pytest
 
 from cam.io import write_ply_mesh
 from cam.spline.surface import surface_from_json
-from service.params import JobParams
+from core.params import JobParams
 from tests.cam.test_fit_shapes import case, cylinder, quads_of, ridge
 from worker.context import StageContext, StageError
 from worker.stages.fit import run_fit

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cam.io import read_ply, write_ply_points
-from service.params import JobParams
+from core.params import JobParams
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 from worker.stages.reconstruct import run_reconstruct
 

@@ -19,7 +19,7 @@ from cam.remesh.quadriflow import (
     remesh_quads,
     run_quadriflow,
 )
-from service.params import JobParams
+from core.params import JobParams
 
 
 def _signed_volume(v, f):

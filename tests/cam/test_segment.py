@@ -14,7 +14,7 @@ from cam.segment.clip import CutState, complete_cuts, patch_labels
 from cam.segment.graph import kruskal
 from cam.segment.patches import grid_of_patch
 from cam.segment.traces import straight_continuation, trace_line
-from service.params import JobParams
+from core.params import JobParams
 from tests.conftest import SHARED_DATA
 from tests.quadshapes import quad_box, quad_capped_cylinder, quad_grid, quad_torus
 

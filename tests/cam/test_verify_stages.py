@@ -9,7 +9,7 @@ import pytest
 
 from cam.io import read_input
 from cam.spline import analytic
-from service.params import JobParams
+from core.params import JobParams
 from worker.context import StageContext, StageError
 
 

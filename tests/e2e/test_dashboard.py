@@ -64,7 +64,7 @@ class Server:
         if dwell_s is not None:
             env.update(CLOUD2CNC_STAGE_PLUGINS="tests.plugins.dwell", CLOUD2CNC_PIPELINE="ingest,dwell",
                        CLOUD2CNC_TEST_DWELL_S=str(dwell_s))
-        args = [sys.executable, "-m", "service.cli", "serve", "--port", str(self.port), "--data-dir", str(tmp / "data"),
+        args = [sys.executable, "-m", "cloud2cnc.cli", "serve", "--port", str(self.port), "--data-dir", str(tmp / "data"),
                 "--log-level", "warning"]
         if not worker:
             args.append("--no-worker")

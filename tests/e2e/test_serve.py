@@ -30,7 +30,7 @@ def _serve(tmp_path, **env_extra) -> tuple[subprocess.Popen, int]:
     env = {k: v for k, v in os.environ.items()
            if k not in ("DATABASE_URL", "CELERY_BROKER_URL", "CLOUD2CNC_API_KEY", "CLOUD2CNC_STAGE_PLUGINS")}
     env.update(env_extra)
-    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+    proc = subprocess.Popen([sys.executable, "-m", "cloud2cnc.cli", "serve", "--port", str(port),
                              "--data-dir", str(tmp_path / "data")], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     return proc, port

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from service.pipeline import StageSpec
+from core.stages import StageSpec
 from worker.context import StageContext, StageError, write_json
 
 
@@ -14,6 +14,6 @@ def run_inspectable_failure(ctx: StageContext) -> dict[str, Path]:
 
 
 STAGES = (
-    StageSpec(name="inspect", version="1", inputs=("ingest.json",), outputs=("debug.json",), param_groups=(),
-              run="tests.plugins.broken:run_inspectable_failure"),
+    StageSpec(name="inspect", version="1", inputs=("ingest.json",), outputs=("debug.json",), param_groups=()),
 )
+IMPLEMENTATIONS = {"inspect": run_inspectable_failure}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from service.pipeline import StageSpec
+from core.stages import StageSpec
 from worker.context import StageContext
 
 
@@ -12,5 +12,5 @@ def run_crash(ctx: StageContext) -> dict[str, Path]:
     return {"x": Path("/nonexistent")}[ctx.stage]
 
 
-STAGES = (StageSpec(name="crash", version="1", inputs=(), outputs=(), param_groups=(),
-                    run="tests.plugins.crash:run_crash"),)
+STAGES = (StageSpec(name="crash", version="1", inputs=(), outputs=(), param_groups=()),)
+IMPLEMENTATIONS = {"crash": run_crash}

@@ -12,7 +12,7 @@ import os
 import time
 from pathlib import Path
 
-from service.pipeline import StageSpec
+from core.stages import StageSpec
 from worker.context import StageContext, write_json
 
 
@@ -33,4 +33,5 @@ def run_dwell(ctx: StageContext) -> dict[str, Path]:
 
 
 STAGES = (StageSpec(name="dwell", version="1", inputs=("ingest.json",), outputs=("dwell.json",),
-                    param_groups=("fit",), run="tests.plugins.dwell:run_dwell"),)
+                    param_groups=("fit",)),)
+IMPLEMENTATIONS = {"dwell": run_dwell}

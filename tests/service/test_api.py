@@ -11,8 +11,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.config import Settings
-from service.pipeline import DESIGN_ORDER
+from core.config import Settings
+from core.stages import DESIGN_ORDER
 from tests.conftest import ROOT, xyz_bytes
 
 PROBLEM = "application/problem+json"
@@ -117,7 +117,7 @@ def test_idempotency_key_replays_conflicts_and_mismatches(client, settings):
     assert_problem(submit(client, data=data, params='{"tool": {"radius_mm": 1}}', headers={"Idempotency-Key": "k-1"}),
                    422, "idempotency-key-reused")
     # A first request still being created: simulate its row.
-    from service.db import IdempotencyKey, get_sessionmaker
+    from core.db import IdempotencyKey, get_sessionmaker
 
     with get_sessionmaker(settings.resolved_database_url).begin() as s:
         s.add(IdempotencyKey(key="k-busy", state="creating"))

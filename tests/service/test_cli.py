@@ -10,7 +10,7 @@ from tests.conftest import ROOT
 
 
 def cli(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True, cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "cloud2cnc.cli", *args], capture_output=True, text=True, cwd=cwd,
                           timeout=120)
 
 

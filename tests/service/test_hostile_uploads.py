@@ -17,7 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.config import Settings
+from core.config import Settings
 from tests.conftest import xyz_bytes
 from tests.service.test_api import assert_problem
 from worker.runner import run_stage

@@ -6,9 +6,9 @@ import time
 
 import pytest
 
-from service import jobs
-from service.db import Job, get_sessionmaker
-from service.pipeline import DESIGN_ORDER, STAGES, cache_key, load_stages
+from core import jobs
+from core.db import Job, get_sessionmaker
+from core.stages import DESIGN_ORDER, STAGES, cache_key, load_stages
 
 
 @pytest.fixture
@@ -94,17 +94,18 @@ def test_cache_key_depends_only_on_what_the_stage_reads():
     spec = STAGES[0]
     base = {"ingest": {"units": "mm"}, "tool": {"radius_mm": 3}}
     settings = {"min_points": 10, "max_points": 100}
-    key = cache_key(spec, base, {"input": "a" * 64}, settings)
-    assert key == cache_key(spec, {**base, "tool": {"radius_mm": 1}}, {"input": "a" * 64}, settings)
-    assert key != cache_key(spec, {**base, "ingest": {"units": "inch"}}, {"input": "a" * 64}, settings)
-    assert key != cache_key(spec, base, {"input": "b" * 64}, settings)
-    assert key != cache_key(spec, base, {"input": "a" * 64}, {**settings, "max_points": 99})
+    key = cache_key(spec, base, {"input": "a" * 64}, settings, code="c")
+    assert key == cache_key(spec, {**base, "tool": {"radius_mm": 1}}, {"input": "a" * 64}, settings, code="c")
+    assert key != cache_key(spec, {**base, "ingest": {"units": "inch"}}, {"input": "a" * 64}, settings, code="c")
+    assert key != cache_key(spec, base, {"input": "b" * 64}, settings, code="c")
+    assert key != cache_key(spec, base, {"input": "a" * 64}, {**settings, "max_points": 99}, code="c")
+    assert key != cache_key(spec, base, {"input": "a" * 64}, settings, code="d")
 
 
 def test_cache_key_follows_the_code_the_stage_runs(tmp_path, monkeypatch):
     # A plugin stage whose module imports a helper inside its function: editing the helper changes the
     # key (a deployment with new code does not reuse old results), editing a module it never imports does not.
-    from service.pipeline import StageSpec
+    from core.stages import StageSpec, code_digest
 
     pkg = tmp_path / "plugpkg"
     pkg.mkdir()
@@ -113,13 +114,17 @@ def test_cache_key_follows_the_code_the_stage_runs(tmp_path, monkeypatch):
     (pkg / "helper.py").write_text("scale = 1.0\n")
     (pkg / "other.py").write_text("unused = 1\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    spec = StageSpec(name="extra", version="1", inputs=(), outputs=(), param_groups=(), run="plugpkg.stage:run")
-    key = cache_key(spec, {}, {}, {})
-    assert key == cache_key(spec, {}, {}, {})
+    spec = StageSpec(name="extra", version="1", inputs=(), outputs=(), param_groups=())
+
+    def key_now() -> str:
+        return cache_key(spec, {}, {}, {}, code=code_digest("plugpkg.stage"))
+
+    key = key_now()
+    assert key == key_now()
     (pkg / "other.py").write_text("unused = 2\n")
-    assert cache_key(spec, {}, {}, {}) == key
+    assert key_now() == key
     (pkg / "helper.py").write_text("scale = 2.0\n")
-    assert cache_key(spec, {}, {}, {}) != key
+    assert key_now() != key
 
 
 def test_a_lapsed_stage_of_a_canceled_job_is_canceled_not_requeued(Session):

@@ -6,7 +6,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.config import Settings
+from core.config import Settings
 from tests.conftest import xyz_bytes
 from worker.runner import Outcome, run_stage
 

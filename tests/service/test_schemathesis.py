@@ -9,7 +9,7 @@ import schemathesis
 from hypothesis import HealthCheck, settings
 
 from service.app import create_app
-from service.config import Settings
+from core.config import Settings
 
 _DATA = Path(tempfile.mkdtemp(prefix="c2c-schemathesis-"))
 app = create_app(Settings(data_dir=_DATA, min_points=10), reconcile=False)

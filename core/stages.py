@@ -1,7 +1,7 @@
 """The stage registry: which stages exist, in DESIGN order, and how a stage's cache key is made.
 
-This module holds metadata only; each stage's implementation is named by a
-dotted path and imported by the worker (it pulls in the geometry stack).
+This module holds metadata only: the API, the worker and the command line read it. Implementations
+belong to the worker (`worker.stages`), which alone imports the geometry stack.
 """
 
 from __future__ import annotations
@@ -27,8 +27,6 @@ class StageSpec:
     """Artifact names the stage may write."""
     param_groups: tuple[str, ...]
     """`JobParams` groups the stage reads; only these enter its cache key."""
-    run: str
-    """`module:function` of the implementation, called with a `worker.context.StageContext`."""
     settings: tuple[str, ...] = field(default=())
     """Operator settings (from `Settings`) the stage reads; they enter the cache key too."""
     time_limit_s: float | None = None
@@ -42,7 +40,6 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("input",),
         outputs=("cloud.ply", "mesh_raw.ply", "ingest.json"),
         param_groups=("ingest",),
-        run="worker.stages.ingest:run_ingest",
         settings=("min_points", "max_points"),
         time_limit_s=900.0,
     ),
@@ -52,7 +49,6 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("cloud.ply",),
         outputs=("mesh_raw.ply",),
         param_groups=("reconstruct",),
-        run="worker.stages.reconstruct:run_reconstruct",
         settings=("blas_threads",),
         time_limit_s=1800.0,
     ),
@@ -62,7 +58,6 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("mesh_raw.ply",),
         outputs=("mesh.ply", "denoise.json"),
         param_groups=("denoise",),
-        run="worker.stages.denoise:run_denoise",
         time_limit_s=1800.0,
     ),
     StageSpec(
@@ -71,7 +66,6 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("mesh.ply",),
         outputs=("quads.obj", "remesh.json"),
         param_groups=("remesh",),
-        run="worker.stages.remesh:run_remesh",
         time_limit_s=1200.0,
     ),
     StageSpec(
@@ -80,7 +74,6 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("quads.obj",),
         outputs=("patches.json", "segments.ply", "setup.json"),
         param_groups=("segment",),
-        run="worker.stages.segment:run_segment",
         time_limit_s=900.0,
     ),
     StageSpec(
@@ -89,7 +82,6 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("quads.obj", "patches.json", "mesh.ply"),
         outputs=("surfaces.json", "surfaces.igs"),
         param_groups=("fit", "toolpath"),  # the default tolerance is a fifth of the scallop height
-        run="worker.stages.fit:run_fit",
         time_limit_s=1800.0,
     ),
     StageSpec(
@@ -99,7 +91,6 @@ STAGES: tuple[StageSpec, ...] = (
         # Segment gives one setup; the planner adds at most the opposite one.
         outputs=("toolpath.json", "toolpath.csv", "setup.json", "program.nc", "program-setup2.nc"),
         param_groups=("tool", "toolpath"),
-        run="worker.stages.plan:run_plan",
         time_limit_s=1800.0,
     ),
     StageSpec(
@@ -108,14 +99,14 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("program.nc", "program-setup2.nc", "setup.json", "surfaces.json", "mesh.ply"),
         outputs=("verify.json", "scallop.ply"),
         param_groups=("tool", "toolpath"),
-        run="worker.stages.verify:run_verify",
         time_limit_s=1800.0,
     ),
 )
 
 
 def load_stages(plugins: str = "", only: str = "") -> tuple[StageSpec, ...]:
-    """The built-in stages plus those of each comma-separated plugin module's `STAGES`.
+    """The built-in stages plus those of each comma-separated plugin module's `STAGES` (a plugin module
+    also maps each of its stage names to its implementation in `IMPLEMENTATIONS`, which the worker reads).
 
     `only`, when not empty, is a comma-separated subset of their names: the pipeline a job runs
     (an operator's meshing-only service runs `ingest,reconstruct,denoise`). Order stays DESIGN's.
@@ -151,16 +142,17 @@ def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[
 
 
 def cache_key(spec: StageSpec, params: dict[str, Any], input_hashes: dict[str, str],
-              settings: dict[str, Any]) -> str:
+              settings: dict[str, Any], *, code: str) -> str:
     """hash(stage, stage code version, its params, its input artifact hashes) as in DESIGN.
 
-    The code version is the declared `version` and `code_digest` of the implementation: a changed
-    deployment does not reuse what older code stored, whether or not someone bumped the version.
+    The code version is the declared `version` and `code`, the `code_digest` of the implementation's
+    module: a changed deployment does not reuse what older code stored, whether or not someone bumped
+    the version.
     """
     material = {
         "stage": spec.name,
         "version": spec.version,
-        "code": code_digest(spec.run.partition(":")[0]),
+        "code": code,
         "params": {g: params.get(g, {}) for g in spec.param_groups},
         "settings": {k: settings[k] for k in spec.settings},
         "inputs": {k: input_hashes[k] for k in sorted(input_hashes) if k in spec.inputs},
@@ -171,14 +163,14 @@ def cache_key(spec: StageSpec, params: dict[str, Any], input_hashes: dict[str, s
 
 def code_digest(module: str) -> str:
     """sha256 over the source of `module` and of every module of its own top-level package, or of
-    cam, worker and service, that it imports, directly or through them (any import statement,
+    cam, core and worker, that it imports, directly or through them (any import statement,
     function-level ones too).
 
     Read from the files each time (tens of files, tens to hundreds of milliseconds), so a file changed
     under a running process counts; what has no Python source (a compiled extension, or a name that
     is an attribute, not a module) is left out.
     """
-    roots = {"cam", "worker", "service", module.split(".")[0]}
+    roots = {"cam", "core", "worker", module.split(".")[0]}
     digest = hashlib.sha256()
     todo, seen = [module], set()
     while todo:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 
 def _settings(data_dir: str | None = None):
-    from service.config import Settings, get_settings
+    from core.config import Settings, get_settings
 
     if data_dir:
         os.environ["CLOUD2CNC_DATA_DIR"] = str(Path(data_dir).resolve())
@@ -36,7 +36,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     worker = None
     if not args.no_worker:
         # A real Celery worker in its own process (and session, so a terminal's Ctrl-C reaches it through us).
-        worker = subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--concurrency", str(args.concurrency)],
+        worker = subprocess.Popen([sys.executable, "-m", "cloud2cnc.cli", "worker", "--concurrency", str(args.concurrency)],
                                   env=env, start_new_session=True)
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     print(f"cloud2cnc: dashboard and API at {url} (API docs at {url}docs); data in {settings.data_dir.resolve()}",
@@ -84,7 +84,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from service.params import merge_params, parse_assignment
+    from core.params import merge_params, parse_assignment
     from worker.local import run_local
 
     params: dict = {}

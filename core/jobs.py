@@ -15,7 +15,7 @@ from typing import Any
 from sqlalchemy import and_, delete, or_, select, update
 from sqlalchemy.orm import Session
 
-from service.db import Artifact, CacheEntry, Job, Stage, utcnow
+from core.db import Artifact, CacheEntry, Job, Stage, utcnow
 
 JOB_STATUSES = ("queued", "running", "succeeded", "failed", "canceled")
 STAGE_STATUSES = JOB_STATUSES + ("skipped",)

@@ -11,7 +11,7 @@ from typing import Iterable
 
 from celery import Celery, chain
 
-from service.config import Settings
+from core.config import Settings
 
 TASK_NAME = "cloud2cnc.run_stage"
 QUEUE = "cloud2cnc"
@@ -82,7 +82,7 @@ def enqueue_chain(app: Celery, job_id: str, stages: Iterable[tuple[str, str, flo
 
 def enqueue_stages(app: Celery, settings: Settings, job_id: str, stages: Iterable[tuple[str, str]]) -> None:
     """`enqueue_chain` for (stage name, task id) pairs, with each stage's own time limit."""
-    from service.pipeline import load_stages, time_limit_s
+    from core.stages import load_stages, time_limit_s
 
     specs = {s.name: s for s in load_stages(settings.stage_plugins, settings.pipeline)}
     enqueue_chain(app, job_id, [(name, task_id, time_limit_s(specs[name], settings.stage_time_limit_s))
