@@ -36,6 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from cam.denoise.mesh_tgv import PARAMETER_BOUNDS, denoise_mesh
+from cam.params import DenoiseParams
 
 AUTHORS = {  # from ../shared/data/README.md: (filtered normals, normals of their result mesh)
     "fandisk": (2.2046, 2.07),
@@ -155,13 +156,13 @@ def main() -> int:
         ours = denoise_mesh(vn, f)
         t_ours = time.perf_counter() - t
         t = time.perf_counter()
-        ours_plain = denoise_mesh(vn, f, flip_repair_rounds=0)
+        ours_plain = denoise_mesh(vn, f, DenoiseParams(flip_repair_rounds=0))
         t_plain = time.perf_counter() - t
         t = time.perf_counter()
         xb, nb = bilateral_normal_filter(vn, f)
         t_bil = time.perf_counter() - t
         clean = denoise_mesh(vg, f)  # what the filter does to noise-free input
-        clean_full = denoise_mesh(vg, f, noise_reference_deg=0.0)  # ... without the noise adaptation
+        clean_full = denoise_mesh(vg, f, DenoiseParams(noise_reference_deg=0.0))  # ... without the noise adaptation
 
         rows.append({
             "mesh": name, "faces": len(f), "noisy": noisy_err,

@@ -35,11 +35,14 @@ def missing_stages() -> list[str]:
 
 
 def run_stage(run, name: str, work: Path, inputs: dict[str, Path], params: dict) -> tuple[dict[str, Path], float]:
+    """Run one worker stage on `inputs` with `params` (a JobParams dump, validated here, as the runner does)."""
+    from core.params import JobParams
     from worker.context import StageContext
 
     out_dir = work / name
     out_dir.mkdir(parents=True, exist_ok=True)
-    ctx = StageContext(job_id="bench", stage=name, inputs=inputs, out_dir=out_dir, params=params, settings={})
+    ctx = StageContext(job_id="bench", stage=name, inputs=inputs, out_dir=out_dir,
+                       params=JobParams.model_validate(params), settings={})
     t0 = time.perf_counter()
     outputs = run(ctx)
     return outputs, time.perf_counter() - t0

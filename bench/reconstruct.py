@@ -178,6 +178,7 @@ def main(argv=None):
                         help="iterations of the plain-MLP comparison run (0 to skip)")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results")
     args = parser.parse_args(argv)
+    from cam.params import ReconstructParams
     from cam.reconstruct import estimate_normals, reconstruct_surface
 
     parts = args.parts.split(",")
@@ -196,7 +197,10 @@ def main(argv=None):
             pts, true_n = sample_cloud(gt, args.points, noise, seed=0)
             label = f"{part} {'normals' if with_normals else 'no normals'} {'noisy' if noise else 'clean'}"
             t = time.perf_counter()
-            res = reconstruct_surface(pts, true_n if with_normals else None, threads=args.threads, seed=0)
+            # max_faces=None: the surface as extracted, as before the core took ReconstructParams
+            # (whose default caps the faces at 200,000).
+            res = reconstruct_surface(pts, true_n if with_normals else None,
+                                      ReconstructParams(max_faces=None, seed=0), threads=args.threads)
             igr_s = time.perf_counter() - t
             if with_normals:
                 pn = true_n
@@ -216,8 +220,9 @@ def main(argv=None):
         gt = load_part(parts[0])
         pts, true_n = sample_cloud(gt, args.points, 0.0, seed=0)
         t = time.perf_counter()
-        res = reconstruct_surface(pts, true_n, preset="mlp", iterations=args.mlp_iterations,
-                                  threads=args.threads, seed=0)
+        res = reconstruct_surface(pts, true_n, ReconstructParams(preset="mlp", iterations=args.mlp_iterations,
+                                                                 max_faces=None, seed=0),
+                                  threads=args.threads)
         mlp_s = time.perf_counter() - t
         mlp_row = {"cloud": f"{parts[0]} normals clean", "preset": "mlp 4x256",
                    "iterations": args.mlp_iterations, **evaluate(gt, res.vertices, res.faces), "time_s": mlp_s}

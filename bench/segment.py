@@ -27,7 +27,8 @@ sys.path.insert(0, str(ROOT))
 
 from cam.io import read_obj, read_ply
 from cam.mesh.quads import face_normals, quad_topology
-from cam.remesh.quadriflow import remesh_quads
+from cam.params import RemeshParams, SegmentParams
+from cam.remesh.quadriflow import RemeshFailed, remesh_quads
 from cam.segment import segment_quads
 
 #: QuadriFlow's face-count targets that land in 3,000-3,500 quads for these meshes (it undershoots Fandisk).
@@ -125,9 +126,9 @@ def main() -> int:
             mesh, scale = read_obj(src), 10.0
         t0 = time.perf_counter()
         try:
-            remeshed = remesh_quads(mesh.points * scale, mesh.faces, target_faces=target, seed=0,
-                                    timeout_s=args.timeout)
-        except ValueError as exc:  # QuadriFlow gave nothing usable: a row-less case, said in the notes
+            remeshed = remesh_quads(mesh.points * scale, mesh.faces,
+                                    RemeshParams(target_faces=target, seed=0, timeout_s=args.timeout))
+        except RemeshFailed as exc:  # QuadriFlow gave nothing usable: a row-less case, said in the notes
             notes.append(f"{name}: remesh failed after {time.perf_counter() - t0:.0f} s: {exc}")
             print(f"{name:18s} remesh failed: {exc}", flush=True)
             failed.add(name)
@@ -143,7 +144,7 @@ def main() -> int:
             notes.append(f"{name}: remesh repairs: " + "; ".join(rep["repairs"]))
         for method in METHODS:
             t1 = time.perf_counter()
-            seg = segment_quads(v, f, method=method)
+            seg = segment_quads(v, f, SegmentParams(method=method))
             seg_s = time.perf_counter() - t1
             st = seg.stats
             frac = st["sharp_on_boundary"] / st["sharp_in_domain"] if st["sharp_in_domain"] else 1.0

@@ -24,11 +24,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from machine_info import describe_machine  # bench/ is on the path when a script runs  # noqa: I001
 
+from cam.params import ToolParams, ToolpathParams
 from cam.gcode import parse_program, write_program
 from cam.spline import analytic
 from cam.gcode.setup import Setup
 from cam.spline.geometry import Patch, orientation_signs
-from cam.plan.plan import plan_job
+from cam.plan import plan_job
 from cam.spline.geometry import area_share, machine_patches, surface_area
 from cam.spline.knots import sub_surface
 from cam.verify import measure_program
@@ -50,7 +51,7 @@ def run_part(ids, surfaces, signs, setups, h, strategy, *, raster=False, raster_
     """Plan with `strategy`, then verify every setup's program on exactly what it claims; with raster=True
     also the OpenCAMLib raster on the same claimed rectangles. Sums over setups."""
     t0 = time.perf_counter()
-    plan = plan_job(ids, surfaces, setups, tool_radius_mm=R, scallop_height_mm=h, strategy=strategy, signs=signs)
+    plan = plan_job(ids, surfaces, setups, ToolParams(radius_mm=R), ToolpathParams(scallop_height_mm=h, strategy=strategy), signs=signs)
     t_plan = time.perf_counter() - t0
     claims: dict[int, list] = {}  # a patch finished in part may be claimed on several rectangles
     for q in plan.partial:

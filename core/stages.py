@@ -12,6 +12,8 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from core.params import JobParams
+
 #: The pipeline of DESIGN.md, in order.
 DESIGN_ORDER = ("ingest", "reconstruct", "denoise", "remesh", "segment", "fit", "plan", "verify")
 
@@ -81,7 +83,7 @@ STAGES: tuple[StageSpec, ...] = (
         version="2",
         inputs=("quads.obj", "patches.json", "mesh.ply"),
         outputs=("surfaces.json", "surfaces.igs"),
-        param_groups=("fit", "toolpath"),  # the default tolerance is a fifth of the scallop height
+        param_groups=("fit",),  # with its tolerance resolved (JobParams.effective)
         time_limit_s=1800.0,
     ),
     StageSpec(
@@ -141,19 +143,20 @@ def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[
     return names[: names.index(until) + 1]
 
 
-def cache_key(spec: StageSpec, params: dict[str, Any], input_hashes: dict[str, str],
+def cache_key(spec: StageSpec, params: JobParams, input_hashes: dict[str, str],
               settings: dict[str, Any], *, code: str) -> str:
     """hash(stage, stage code version, its params, its input artifact hashes) as in DESIGN.
 
     The code version is the declared `version` and `code`, the `code_digest` of the implementation's
     module: a changed deployment does not reuse what older code stored, whether or not someone bumped
-    the version.
+    the version. The params hashed are the stage's groups as it is given them (`JobParams.effective`):
+    what it reads, derived values included, and nothing else.
     """
     material = {
         "stage": spec.name,
         "version": spec.version,
         "code": code,
-        "params": {g: params.get(g, {}) for g in spec.param_groups},
+        "params": {g: params.effective(g).model_dump(mode="json") for g in spec.param_groups},
         "settings": {k: settings[k] for k in spec.settings},
         "inputs": {k: input_hashes[k] for k in sorted(input_hashes) if k in spec.inputs},
     }

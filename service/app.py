@@ -7,11 +7,11 @@ from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI
 
-from service import problems
 from core.config import Settings, get_settings
 from core.db import get_engine
-from service.deps import require_api_key
 from core.stages import load_stages
+from service import problems
+from service.deps import require_api_key
 from service.reconciler import Reconciler
 from service.routes import artifacts, dashboard, health, jobs
 

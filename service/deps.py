@@ -11,9 +11,9 @@ from sqlalchemy.orm import Session
 
 from core.config import Settings, get_settings
 from core.db import get_sessionmaker
-from service.problems import Problem
 from core.queue import get_celery
 from core.store import ArtifactStore
+from service.problems import Problem
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

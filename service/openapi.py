@@ -8,8 +8,8 @@ from typing import Any
 
 
 def openapi_schema() -> dict[str, Any]:
-    from service.app import create_app
     from core.config import Settings
+    from service.app import create_app
 
     return create_app(Settings(data_dir=Path("unused")), reconcile=False).openapi()
 

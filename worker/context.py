@@ -6,6 +6,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from cam import CheckCancel, Progress, progress_between
+from cam.io.errors import ReadError
+from core.params import JobParams
+
 
 class StageError(Exception):
     """A failure the user can act on; its message is shown to them as it is.
@@ -39,18 +43,18 @@ class StageSkipped(Exception):
 class StageContext:
     """Inputs by artifact name, a folder for outputs, the job's params and the stage's callbacks.
 
-    `progress(fraction, message)` reports 0..1; `check_cancel()` raises `StageCanceled`
-    when the job was canceled — call both from long loops.
+    `progress(fraction, message=None)` reports 0..1; `check_cancel()` raises `StageCanceled` when the
+    job was canceled. Both are handed to `cam` as they are (cam's one convention, see `cam`).
     """
 
     job_id: str
     stage: str
     inputs: dict[str, Path]
     out_dir: Path
-    params: dict[str, Any]
+    params: JobParams
     settings: dict[str, Any]
-    progress: Callable[[float, str | None], None] = field(default=lambda f, m=None: None)
-    check_cancel: Callable[[], None] = field(default=lambda: None)
+    progress: Progress = field(default=lambda fraction, message=None: None)
+    check_cancel: CheckCancel = field(default=lambda: None)
 
     def output(self, name: str) -> Path:
         """Where to write artifact `name` (the runner stores it after the stage returns)."""
@@ -58,29 +62,11 @@ class StageContext:
 
     def read(self, name: str, reader: Callable[[Path], Any]) -> Any:
         """Input artifact `name` as `reader` returns it; a file it cannot read fails the stage, naming the file."""
-        from cam.io.errors import (
-            ReadError,  # here, not at the top: the API imports this module, not cam
-        )
-
         try:
             return reader(self.inputs[name])
         except ReadError as exc:
             raise StageError(f"could not read {name}: {exc}") from exc
 
-
-def write_json(path: Path, obj: Any) -> Path:
-    """Write JSON to a temporary name beside `path` and rename it into place."""
-    import json
-    import os
-    import tempfile
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, sort_keys=False)
-            fh.write("\n")
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
-    return path
+    def progress_between(self, start: float, end: float) -> Progress:
+        """`progress` for a step that takes start..end of the stage."""
+        return progress_between(self.progress, start, end)

@@ -8,20 +8,17 @@ from __future__ import annotations
 import shutil
 import sys
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from cam import GeometryError
+from cam.io import write_json
 from core.config import Settings
 from core.params import JobParams
 from core.stages import load_stages, stage_names_until
-from worker.context import (
-    StageCanceled,
-    StageContext,
-    StageError,
-    StageSkipped,
-    write_json,
-)
+from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 from worker.stages import implementation
 
 
@@ -67,11 +64,11 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
     """
     if not input_path.is_file():
         raise ValueError(f"input file not found: {input_path}")
-    params = JobParams.model_validate(params).model_dump(mode="json")
+    params = JobParams.model_validate(params)
     stages = load_stages(settings.stage_plugins, settings.pipeline)
     names = stage_names_until(stages, until)
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_json(out_dir / "params.json", params)
+    write_json(out_dir / "params.json", params.model_dump(mode="json"))
     reports = []
     for spec in stages:
         if spec.name not in names:
@@ -95,12 +92,19 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
                                        error=str(exc) or None))
             bar.end(f"skipped {exc}")
             continue
-        except (StageError, ValueError, StageCanceled) as exc:
+        except (StageError, GeometryError, StageCanceled) as exc:
             for name, path in getattr(exc, "outputs", {}).items():
                 Path(path).replace(out_dir / name)  # kept for inspection
             shutil.rmtree(scratch, ignore_errors=True)
             reports.append(StageReport(spec.name, "failed", time.perf_counter() - t0, error=str(exc)))
             bar.end(f"FAILED: {exc}")
+            break
+        except Exception as exc:  # noqa: BLE001 — our bug: the traceback goes to the stream, the run stops
+            shutil.rmtree(scratch, ignore_errors=True)
+            error = f"internal error in stage {spec.name} ({type(exc).__name__}: {exc})"
+            reports.append(StageReport(spec.name, "failed", time.perf_counter() - t0, error=error))
+            stream.write(traceback.format_exc())
+            bar.end(f"FAILED: {error}")
             break
         for name, path in outputs.items():
             Path(path).replace(out_dir / name)  # same folder: an atomic rename

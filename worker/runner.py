@@ -20,9 +20,11 @@ from typing import Any, Callable
 
 from sqlalchemy import select
 
+from cam import GeometryError
 from core import jobs
 from core.config import Settings
 from core.db import Artifact, Job, get_sessionmaker, utcnow
+from core.params import JobParams
 from core.stages import StageSpec, cache_key, code_digest, load_stages, time_limit_s
 from core.store import ArtifactStore
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
@@ -97,7 +99,7 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
         claim = jobs.claim_stage(session, job_id, stage_name, lease_s=settings.stage_lease_s, worker=worker)
         if claim is None:
             return Outcome.STOP
-        params = dict(job.params)
+        params = JobParams.model_validate(job.params)
         # Only what earlier stages wrote: a later stage may reuse a name (plan rewrites setup.json).
         earlier = {s.name for s in previous}
         available = {a.name: a.sha256 for a in job.artifacts if a.stage in earlier}
@@ -180,7 +182,7 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
             except StageCanceled:
                 finish(status="canceled", message="canceled by the user")
                 return Outcome.STOP
-            except (StageError, ValueError) as exc:
+            except (StageError, GeometryError) as exc:
                 _finish_keeping(Session, store, spec, job_id, claim.token, getattr(exc, "outputs", {}),
                                 status="failed", error=_problem("stage-failed", f"Stage {stage_name} failed",
                                                                 str(exc), stage_name))

@@ -1,11 +1,6 @@
 """The `denoise` stage: MeshTGV (TGV on face normals by variable splitting and an augmented Lagrangian,
 then the vertex update). `mesh_tgv` holds the entry point, `tgv` the normal filter."""
 
-from cam.denoise.mesh_tgv import (
-    PARAMETER_BOUNDS,
-    DenoiseCanceled,
-    DenoiseResult,
-    denoise_mesh,
-)
+from cam.denoise.mesh_tgv import PARAMETER_BOUNDS, DenoiseResult, denoise_mesh
 
-__all__ = ["PARAMETER_BOUNDS", "DenoiseCanceled", "DenoiseResult", "denoise_mesh"]
+__all__ = ["PARAMETER_BOUNDS", "DenoiseResult", "denoise_mesh"]

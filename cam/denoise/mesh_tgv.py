@@ -15,31 +15,30 @@ rounds of a local repair follow: the vertices of every face whose normal opposes
 are moved to the average of their neighbours within the tangent plane (normal motion is left to the
 update), then a few more update iterations run. Set it to 0 for the paper's update alone.
 
-Bad input: non-finite coordinates, wrong shapes, out-of-range indices, no usable face -> ValueError.
-Zero-area faces (repeated vertex indices or an area below 1e-12 mean-edge-lengths squared) are
-handled: they are left out of the filtering and of the vertex update, and their reported normal is
-the normalised mean of the filtered normals of the faces sharing a vertex with them (zero when they
-have none). Edges with more than two faces (non-manifold) are handled by not coupling the faces
-across them (they act like boundary edges); neighbours with inconsistent orientation are compared
-with a sign flip. All counts are in the report.
+Bad input: non-finite coordinates, wrong shapes, out-of-range indices, parameters out of range ->
+ValueError (a caller's bug: the pipeline's readers and `DenoiseParams` rule them out); no face of
+non-zero area -> :class:`~cam.GeometryError` (the user's mesh is degenerate). Zero-area faces
+(repeated vertex indices or an area below 1e-12 mean-edge-lengths squared) are handled: they are
+left out of the filtering and of the vertex update, and their reported normal is the normalised
+mean of the filtered normals of the faces sharing a vertex with them (zero when they have none).
+Edges with more than two faces (non-manifold) are handled by not coupling the faces across them
+(they act like boundary edges); neighbours with inconsistent orientation are compared with a sign
+flip. All counts are in the report.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from cam import CheckCancel, GeometryError, Progress
 from cam.denoise.tgv import face_topology, tgv_filter_normals
+from cam.params import DenoiseParams
 
-__all__ = ["PARAMETER_BOUNDS", "DenoiseCanceled", "DenoiseResult", "denoise_mesh"]
-
-
-class DenoiseCanceled(Exception):
-    """Raised by :func:`denoise_mesh` when ``should_cancel()`` returned True."""
+__all__ = ["PARAMETER_BOUNDS", "DenoiseResult", "denoise_mesh"]
 
 
 @dataclass(frozen=True)
@@ -50,7 +49,8 @@ class DenoiseResult:
     report: dict = field(default_factory=dict)  # plain JSON types only
 
 
-# name: (default, lower, upper, lower_inclusive); upper is inclusive. Same numbers as the signature.
+# name: (default, lower, upper, lower_inclusive); upper is inclusive. Same numbers as DenoiseParams
+# (checked again here for a group built without validation, e.g. by model_construct).
 PARAMETER_BOUNDS: dict[str, tuple[float, float, float, bool]] = {
     "alpha0": (0.15, 0.0, 100.0, False),
     "alpha1": (0.4, 0.0, 100.0, False),
@@ -70,23 +70,20 @@ _REPAIR_UPDATE_ITERATIONS = 5  # vertex-update iterations after each flip-repair
 def denoise_mesh(
     vertices: np.ndarray,
     faces: np.ndarray,
+    params: DenoiseParams = DenoiseParams(),
     *,
-    alpha0: float = 0.15,
-    alpha1: float = 0.4,
-    penalty0: float = 2.0,
-    penalty1: float = 2.0,
-    vertex_iterations: int = 20,
-    flip_repair_rounds: int = 5,
-    max_iterations: int = 100,
-    tolerance: float = 1e-5,
-    noise_reference_deg: float = 15.0,
-    progress: Callable[[float, str], None] | None = None,
-    should_cancel: Callable[[], bool] | None = None,
+    progress: Progress | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> DenoiseResult:
     """Denoise a triangle mesh with MeshTGV normal filtering and the iterative vertex update.
 
-    Every parameter is dimensionless: the mesh is first expressed in units of its mean edge
-    length, so the result does not depend on the input's scale, position or orientation.
+    vertices: (n, 3) real coordinates, any unit; faces: (m, 3) integer indices into them.
+    Returns vertices float64 (n, 3) in the input's units and frame, and the filtered unit face
+    normals float64 (m, 3).
+
+    Every parameter of ``params`` is dimensionless: the mesh is first expressed in units of its
+    mean edge length, so the result does not depend on the input's scale, position or
+    orientation. ``params.enabled`` is not read here (the stage skips a disabled denoise).
 
     alpha0: weight of the second-order TGV term (jumps of the auxiliary gradient field across
         edges, gradients per mean edge length, each jump weighted by its edge length in mean edge
@@ -107,21 +104,15 @@ def denoise_mesh(
         the full weights and clean input is left (nearly) alone. 0 switches the adaptation off.
     progress: ``progress(fraction, message)``, called once per outer iteration (fractions rise
         through [0, 0.9)) and once at the end with 1.0.
-    should_cancel: polled once per outer iteration and per vertex iteration; when it returns True
-        :class:`DenoiseCanceled` is raised.
+    check_cancel: called once before the filter, once per outer iteration and once per vertex
+        iteration; it stops the work by raising (the exception passes through untouched).
+
+    Raises :class:`~cam.GeometryError` when no face has a non-zero area; ``ValueError`` for
+    arrays or parameters a caller got wrong.
     """
     t0 = time.perf_counter()
-    params = {
-        "alpha0": alpha0, "alpha1": alpha1, "penalty0": penalty0, "penalty1": penalty1,
-        "vertex_iterations": vertex_iterations, "flip_repair_rounds": flip_repair_rounds,
-        "max_iterations": max_iterations, "tolerance": tolerance,
-        "noise_reference_deg": noise_reference_deg,
-    }
-    params = _check_params(params)
-
-    def check_cancel() -> None:
-        if should_cancel is not None and should_cancel():
-            raise DenoiseCanceled("denoising canceled")
+    options = _check_params({name: getattr(params, name) for name in PARAMETER_BOUNDS})
+    check_cancel = check_cancel or _no_cancel
 
     v_in, f_in = _check_mesh(vertices, faces)
     n, m = len(v_in), len(f_in)
@@ -134,13 +125,13 @@ def denoise_mesh(
     repeated = (f_in[:, 0] == f_in[:, 1]) | (f_in[:, 1] == f_in[:, 2]) | (f_in[:, 2] == f_in[:, 0])
     ell0 = _mean_edge_length(v_in, f_in[~repeated])
     if not np.isfinite(ell0) or ell0 <= 0.0:
-        raise ValueError(f"all {m} faces are degenerate (no face has an edge of non-zero length)")
+        raise GeometryError(f"all {m} faces are degenerate (no face has an edge of non-zero length)")
     cross = np.cross(v_in[f_in[:, 1]] - v_in[f_in[:, 0]], v_in[f_in[:, 2]] - v_in[f_in[:, 0]])
     area0 = 0.5 * np.linalg.norm(cross, axis=1) / (ell0 * ell0)
     valid = ~repeated & (area0 > _DEGENERATE_REL_AREA)
     n_degenerate = int(m - valid.sum())
     if not valid.any():
-        raise ValueError(f"all {m} faces are degenerate (zero area)")
+        raise GeometryError(f"all {m} faces are degenerate (zero area)")
     vf = f_in[valid]
     ell = _mean_edge_length(v_in, vf)
     used = np.unique(vf)
@@ -150,34 +141,34 @@ def denoise_mesh(
     # --- noise adaptation -------------------------------------------------------------------------
     topo = face_topology(vf, n)
     median_dihedral = _median_dihedral_deg(x, vf, topo)
-    if params["noise_reference_deg"] > 0:
-        weight_scale = min(1.0, median_dihedral / params["noise_reference_deg"])
+    if options["noise_reference_deg"] > 0:
+        weight_scale = min(1.0, median_dihedral / options["noise_reference_deg"])
     else:
         weight_scale = 1.0
-    alpha0_used = params["alpha0"] * weight_scale
-    alpha1_used = params["alpha1"] * weight_scale
+    alpha0_used = options["alpha0"] * weight_scale
+    alpha1_used = options["alpha1"] * weight_scale
 
     # --- normal filtering ---------------------------------------------------------------------
 
     def on_iteration(k: int, rel: float) -> None:
-        check_cancel()
         if progress is not None:
-            progress(0.9 * k / (params["max_iterations"] + 1),
+            progress(0.9 * k / (options["max_iterations"] + 1),
                      f"normal filtering: iteration {k}, relative change {rel:.3g}")
 
     tgv = tgv_filter_normals(
         x, vf, topo,
         alpha0=alpha0_used, alpha1=alpha1_used,
-        r0=params["penalty0"], r1=params["penalty1"],
-        max_iterations=params["max_iterations"], tolerance=params["tolerance"],
-        progress=on_iteration,
+        r0=options["penalty0"], r1=options["penalty1"],
+        max_iterations=options["max_iterations"], tolerance=options["tolerance"],
+        on_iteration=on_iteration, check_cancel=check_cancel,
     )
     normals_valid = tgv.normals
 
     # --- vertex update --------------------------------------------------------------------------
     t_vu = time.perf_counter()
     x_new, flips_before, flips_after = _update_vertices(
-        x, vf, normals_valid, params["vertex_iterations"], params["flip_repair_rounds"], check_cancel
+        x, vf, normals_valid, options["vertex_iterations"], options["flip_repair_rounds"],
+        check_cancel=check_cancel,
     )
     t_vu_end = time.perf_counter()
 
@@ -196,8 +187,8 @@ def denoise_mesh(
 
     warnings = []
     if not tgv.converged:
-        warnings.append(f"normal filtering stopped at max_iterations={params['max_iterations']} with "
-                        f"relative change {tgv.relative_change:.3g} (tolerance {params['tolerance']:g})")
+        warnings.append(f"normal filtering stopped at max_iterations={options['max_iterations']} with "
+                        f"relative change {tgv.relative_change:.3g} (tolerance {options['tolerance']:g})")
     sliver = _sliver_fraction(x, vf)
     if sliver > 0.1:
         warnings.append(f"{100 * sliver:.0f}% of the faces are slivers (longest edge > 10x the height "
@@ -219,7 +210,7 @@ def denoise_mesh(
             "total": round(t_end - t0, 6),
         },
         "parameters": {k: (int(v) if isinstance(v, (int, np.integer)) else float(v))
-                       for k, v in params.items()},
+                       for k, v in options.items()},
         "scaling": {
             "length_unit": "mean edge length",
             "mean_edge_length": float(ell),
@@ -251,6 +242,10 @@ def denoise_mesh(
 
 
 # ------------------------------------------------------------------------------------------------
+def _no_cancel() -> None:
+    pass
+
+
 def _check_params(params: dict) -> dict:
     out = {}
     for name, value in params.items():
@@ -331,7 +326,7 @@ def _unit(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def _update_vertices(x, f, normals, iterations, repair_rounds, check_cancel):
+def _update_vertices(x, f, normals, iterations, repair_rounds, *, check_cancel: CheckCancel | None = None):
     """Vertex update (Sun et al. scheme) plus the folded-face repair; mean-edge units."""
     n = len(x)
     m = len(f)
@@ -350,6 +345,7 @@ def _update_vertices(x, f, normals, iterations, repair_rounds, check_cancel):
         b = np.einsum("nij,nj->ni", Msum, x)
         return x + (a - b) * inv_count[:, None]
 
+    check_cancel = check_cancel or _no_cancel
     x = x.copy()
     for _ in range(iterations):
         check_cancel()

@@ -48,6 +48,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from cam import CheckCancel
+
 
 @dataclass(frozen=True)
 class FaceTopology:
@@ -171,11 +173,13 @@ def tgv_filter_normals(
     r1: float,
     max_iterations: int,
     tolerance: float,
-    progress: Callable[[int, float], None] | None = None,
+    on_iteration: Callable[[int, float], None] | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> TGVResult:
     """Filter the face normals of (vertices, faces) with MeshTGV; lengths in mean-edge units.
 
-    ``progress(k, relative_change)`` is called after outer iteration k; it may raise to stop.
+    After outer iteration k, ``check_cancel()`` is called (it stops the work by raising), then
+    ``on_iteration(k, relative_change)``.
     """
     t_start = time.perf_counter()
     m = len(faces)
@@ -254,8 +258,10 @@ def tgv_filter_normals(
         dN = N_new - N
         rel = float(np.sqrt(np.einsum("ij,ij->", dN, dN) / max(np.einsum("ij,ij->", N, N), 1e-300)))
         N = N_new
-        if progress is not None:
-            progress(k, rel)
+        if check_cancel is not None:
+            check_cancel()
+        if on_iteration is not None:
+            on_iteration(k, rel)
         if rel < tolerance:
             converged = True
             break

@@ -19,10 +19,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SIDES", "Piece", "CurveSpec", "SharedSegment", "Layout", "boundary_layout", "side_vertices",
-           "side_params"]
+from cam import GeometryError
+
+__all__ = ["SIDES", "PatchLayoutError", "Piece", "CurveSpec", "SharedSegment", "Layout", "boundary_layout",
+           "side_vertices", "side_params"]
 
 SIDES = ("u0", "u1", "v0", "v1")
+
+
+class PatchLayoutError(GeometryError):
+    """The patches do not tile the part: an edge of the quad mesh borders more than two patch sides."""
 
 
 def side_vertices(grid: np.ndarray, name: str) -> np.ndarray:
@@ -87,7 +93,7 @@ def _key(a: int, b: int) -> tuple[int, int]:
 def boundary_layout(grids: list[np.ndarray]) -> Layout:
     """Segments, curves and pieces of patches given as grids of vertex ids (each int (R + 1, C + 1)).
 
-    Raises ValueError when an edge lies on the border of more than two patch sides.
+    Raises `PatchLayoutError` when an edge lies on the border of more than two patch sides.
     """
     sides = {(k, name): side_vertices(g, name) for k, g in enumerate(grids) for name in SIDES}
     edges: dict[tuple[int, int], list[tuple[int, str, int]]] = {}
@@ -154,8 +160,9 @@ def _runs(key, vs, sides, edges) -> list[tuple[int, int, tuple | None]]:
     for t in range(len(vs) - 1):
         occ = [o for o in edges[_key(vs[t], vs[t + 1])] if o != (key[0], key[1], t)]
         if len(occ) > 1:
-            raise ValueError(f"edge ({vs[t]}, {vs[t + 1]}) borders {len(occ) + 1} patch sides; a patch boundary "
-                             "edge must belong to at most two patches")
+            raise PatchLayoutError(f"quad-mesh edge ({vs[t]}, {vs[t + 1]}) borders {len(occ) + 1} patch sides; a "
+                                   "patch boundary edge must belong to at most two patches: rerun segment or change "
+                                   "its parameters")
         if occ:
             k2, n2, t2 = occ[0]
             rev = int(sides[(k2, n2)][t2]) != int(vs[t])

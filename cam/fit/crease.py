@@ -67,11 +67,11 @@ def edge_keys(edges: np.ndarray | None) -> set[tuple[int, int]]:
 
 
 def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sharp: set[tuple[int, int]],
-                     creases: Creases | None, snap_radius: float = 1.0) -> np.ndarray:
+                     creases: Creases | None, snap_radius_quads: float = 1.0) -> np.ndarray:
     """Where each quad-mesh vertex of the grids sits on the mesh: float64 (k, 3), NaN for vertices in no grid.
 
     Vertices on a sharp patch border (an edge of the grid's outline in `sharp`) move onto the
-    mesh's creases if one is within `snap_radius` times their mean edge length; a vertex where
+    mesh's creases if one is within `snap_radius_quads` times their mean edge length; a vertex where
     sharp edges meet at an angle (or three or more meet) may go to a crease corner instead, one
     nearer to it than to its sharp neighbours.
     Every other vertex goes to its closest mesh point.
@@ -120,7 +120,7 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
             direction[n] = 0.0 if corner[n] else V[others[1]] - V[others[0]]
         else:
             direction[n] = V[others[0]] - V[vid]
-    radius = snap_radius * np.array([np.mean(length[v]) for v in ids.tolist()])
+    radius = snap_radius_quads * np.array([np.mean(length[v]) for v in ids.tolist()])
     start = out[ids].copy()
     # A junction of three or more sharp edges goes to a crease corner where as many creases meet
     # before a vertex where the sharp row only bends may take it: the bend can sit nearer the

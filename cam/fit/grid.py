@@ -5,6 +5,9 @@ and its four corners; `patch_grid` walks the faces from the first corner and
 returns the (rows + 1) x (cols + 1) grid of vertex ids. The walk follows each
 quad's own vertex order, so S_u x S_v of a surface fitted on the grid points the
 way the quads' normals point.
+
+A patch whose faces are no such grid raises `PatchGridError`: the patch layout (segment's output)
+is what to change, not the fit.
 """
 
 from __future__ import annotations
@@ -13,7 +16,13 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["patch_grid", "orient_grid"]
+from cam import GeometryError
+
+__all__ = ["PatchGridError", "patch_grid", "orient_grid"]
+
+
+class PatchGridError(GeometryError):
+    """A patch's faces (or its listed grid) are not one rectangular grid of quads of the quad mesh."""
 
 
 def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = None,
@@ -24,25 +33,26 @@ def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = Non
     faces: int (k,) the patch's face indices; corner: vertex id to put at [0, 0]
     (a patch corner; default: any corner); rows/cols: the expected counts (R x C or C x R
     is accepted, the grid keeps the orientation that puts `corner` first).
-    Raises ValueError when the faces do not form one rectangular grid.
+    Raises `PatchGridError` when the faces do not form one rectangular grid (ValueError when `quads`
+    is not (m, 4)).
     """
     Q = np.asarray(quads, dtype=np.int64)
     if Q.ndim != 2 or Q.shape[1] != 4:
         raise ValueError(f"quads must have shape (m, 4), got {Q.shape}")
     fids = [int(f) for f in np.asarray(faces, dtype=np.int64).ravel()]
     if not fids:
-        raise ValueError("a patch needs at least one face")
+        raise PatchGridError("a patch needs at least one face")
     if min(fids) < 0 or max(fids) >= len(Q):
-        raise ValueError(f"patch face ids must lie in 0..{len(Q) - 1}")
+        raise PatchGridError(f"patch face ids must lie in 0..{len(Q) - 1}")
     if len(set(fids)) != len(fids):
-        raise ValueError("patch lists a face twice")
+        raise PatchGridError("patch lists a face twice")
     edge_faces: dict[tuple[int, int], list[int]] = {}
     for f in fids:
         for a in range(4):
             e = _key(Q[f, a], Q[f, (a + 1) % 4])
             edge_faces.setdefault(e, []).append(f)
     if any(len(v) > 2 for v in edge_faces.values()):
-        raise ValueError("patch faces share an edge more than twice (non-manifold)")
+        raise PatchGridError("patch faces share an edge more than twice (non-manifold)")
     incident: dict[int, list[int]] = {}
     for f in fids:
         for vtx in Q[f]:
@@ -50,10 +60,10 @@ def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = Non
     if corner is None:
         corners = [v for v, fs in incident.items() if len(fs) == 1 and _is_corner(Q[fs[0]], v, edge_faces)]
         if not corners:
-            raise ValueError("patch has no corner (a vertex in one face with two boundary edges)")
+            raise PatchGridError("patch has no corner (a vertex in one face with two boundary edges)")
         corner = min(corners)
     if len(incident.get(int(corner), [])) != 1:
-        raise ValueError(f"vertex {corner} is not a corner of the patch (it is in "
+        raise PatchGridError(f"vertex {corner} is not a corner of the patch (it is in "
                          f"{len(incident.get(int(corner), []))} of its faces)")
     start = incident[int(corner)][0]
     cyc = list(Q[start])
@@ -79,35 +89,35 @@ def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = Non
             ni, nj = i + di, j + dj
             if g in pos:
                 if pos[g] != (ni, nj):
-                    raise ValueError("patch faces do not form a rectangular grid (a face is reached twice)")
+                    raise PatchGridError("patch faces do not form a rectangular grid (a face is reached twice)")
                 continue
             cg = list(Q[g])
             if va not in cg or vb not in cg:
-                raise ValueError("inconsistent quad connectivity")
+                raise PatchGridError("inconsistent quad connectivity")
             # Across side (va, vb) the far corners are the neighbours of va and vb in g not on the side.
             far_a = _other_neighbour(cg, va, vb)
             far_b = _other_neighbour(cg, vb, va)
             for (ci, cj), vid in _far_slots(s0, s1, i, j, di, dj, far_a, far_b).items():
                 if grid.setdefault((ci, cj), vid) != vid:
-                    raise ValueError("patch faces do not form a rectangular grid (a grid point is claimed twice)")
+                    raise PatchGridError("patch faces do not form a rectangular grid (a grid point is claimed twice)")
             pos[g] = (ni, nj)
             queue.append(g)
     if len(pos) != len(fids):
-        raise ValueError(f"patch faces are not connected: reached {len(pos)} of {len(fids)}")
+        raise PatchGridError(f"patch faces are not connected: reached {len(pos)} of {len(fids)}")
     ij = np.array(list(pos.values()))
     if ij.min() < 0:
-        raise ValueError("patch faces do not form a rectangular grid (the corner is not a grid corner)")
+        raise PatchGridError("patch faces do not form a rectangular grid (the corner is not a grid corner)")
     R, C = ij[:, 0].max() + 1, ij[:, 1].max() + 1
     if R * C != len(fids):
-        raise ValueError(f"patch faces do not form a rectangular grid: {len(fids)} faces in a {R} x {C} box")
+        raise PatchGridError(f"patch faces do not form a rectangular grid: {len(fids)} faces in a {R} x {C} box")
     if rows is not None and cols is not None and sorted((R, C)) != sorted((int(rows), int(cols))):
-        raise ValueError(f"patch says {rows} x {cols} quads but its faces form {R} x {C}")
+        raise PatchGridError(f"patch says {rows} x {cols} quads but its faces form {R} x {C}")
     out = np.empty((R + 1, C + 1), dtype=np.int64)
     for i in range(R + 1):
         for j in range(C + 1):
             out[i, j] = grid[(i, j)]
     if len(np.unique(out)) != out.size:
-        raise ValueError("patch grid repeats a vertex (a closed or pinched patch)")
+        raise PatchGridError("patch grid repeats a vertex (a closed or pinched patch)")
     return out
 
 
@@ -138,13 +148,19 @@ def orient_grid(quads: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """`grid` (int (R + 1, C + 1) vertex ids), transposed if needed so that S_u x S_v follows the quads' normals.
 
     The quad holding grid[0, 0], grid[1, 0], grid[1, 1], grid[0, 1] must list them in that cyclic
-    order; listed the other way round the grid is transposed. Raises ValueError when no quad of
-    `quads` (int (m, 4)) has those four corners.
+    order; listed the other way round the grid is transposed. Raises `PatchGridError` when the grid
+    is not (R + 1, C + 1) with R, C >= 1, names a vertex that is in no quad of `quads` (int (m, 4)), or
+    no quad has the four corners of its first cell.
     """
     g = np.asarray(grid, dtype=np.int64)
+    # The grid comes from patches.json as it is: its shape and ids are the file's, not a program's.
     if g.ndim != 2 or min(g.shape) < 2:
-        raise ValueError(f"grid must be (R + 1, C + 1) with R, C >= 1, got shape {g.shape}")
+        raise PatchGridError(f"the patch's grid must be (R + 1, C + 1) vertex ids with R, C >= 1, "
+                             f"got shape {g.shape}")
     Q = np.asarray(quads, dtype=np.int64)
+    if not np.isin(g, Q).all():
+        raise PatchGridError(f"the patch's grid names vertices in no quad of the quad mesh: "
+                             f"{np.unique(g[~np.isin(g, Q)])[:5].tolist()}")
     cell = {int(g[0, 0]), int(g[1, 0]), int(g[1, 1]), int(g[0, 1])}
     hits = np.flatnonzero(np.isin(Q, list(cell)).all(axis=1))
     for f in hits:
@@ -156,4 +172,4 @@ def orient_grid(quads: np.ndarray, grid: np.ndarray) -> np.ndarray:
             return g
         if cyc[(a + 1) % 4] == int(g[0, 1]):
             return g.T.copy()
-    raise ValueError("no quad has the grid's first cell as its corners")
+    raise PatchGridError("no quad has the grid's first cell as its corners")

@@ -362,7 +362,7 @@ class Anchors:
     targets: np.ndarray
 
 
-def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, spacing: float = 2.0,
+def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, knot_spacing_quads: float = 2.0,
                  positions: np.ndarray | None = None) -> Anchors:
     """Anchors of one patch: its grid (int (R + 1, C + 1) vertex ids) moved onto the mesh `index`.
 
@@ -370,7 +370,7 @@ def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, spacing: floa
     crease, see `cam.fit.crease`); default: the closest point of the mesh.
 
     `targets` (m, 3) are where a smooth parameterisation puts the grid points: a cubic spline
-    with knots every `spacing` quads fitted to the grid vertices at their indices, so the
+    with knots every `knot_spacing_quads` quads fitted to the grid vertices at their indices, so the
     remesher's vertex-to-vertex irregularity is not forced on the fit while its overall
     layout is kept (and an exact grid stays exact).
     """
@@ -395,8 +395,8 @@ def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, spacing: floa
     on_u = ((i == 0) | (i == g.shape[0] - 1)).ravel()
     on_v = ((j == 0) | (j == g.shape[1] - 1)).ravel()
     iu, jv = i.ravel().astype(np.float64), j.ravel().astype(np.float64)
-    ku = _lattice(g.shape[0] - 1, spacing)
-    kv = _lattice(g.shape[1] - 1, spacing)
+    ku = _lattice(g.shape[0] - 1, knot_spacing_quads)
+    kv = _lattice(g.shape[1] - 1, knot_spacing_quads)
     B = surface_matrix(ku, kv, iu, jv).toarray()
     targets = B @ np.linalg.lstsq(B, on_mesh, rcond=None)[0]
     return Anchors(points=on_mesh, normals=n, u=iu, v=jv, across_u=au * on_u[:, None], across_v=av * on_v[:, None],

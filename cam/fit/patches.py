@@ -16,10 +16,10 @@ The order follows the paper with C0 made exact:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
+from cam import CheckCancel, GeometryError, Progress
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_params, side_vertices
 from cam.fit.crease import edge_keys, snap_points, vertex_positions
 from cam.fit.curve import CurveFit, fit_curve
@@ -34,6 +34,7 @@ from cam.fit.refine import Refined, fit_refined
 from cam.fit.solve import SurfaceFit
 from cam.mesh.closest import closest_points, mesh_index, triangle_normals
 from cam.mesh.creases import closest_on_creases, mesh_creases
+from cam.params import FitParams
 from cam.spline.basis import evaluate_surface
 from cam.spline.knots import (
     join_curves,
@@ -116,57 +117,84 @@ class FitResult:
 
 
 def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
-                *, tolerance_mm: float = 0.032, other_quads: np.ndarray | None = None,
-                sharp_edges: np.ndarray | None = None, crease_angle_deg: float = 40.0, snap_radius: float = 1.0,
-                knot_spacing: float = 2.0, samples_per_face: int = 1, max_samples_per_quad: float | None = 32.0,
-                smoothing_mm2: float = 1e-4,
-                smoothing_floor: float = 1e-6, param_weight: float = 0.01, normal_weight_mm: float = 0.02,
-                anchor_weight: float = 1.0, iterations: int = 8, max_refinements: int = 3,
-                min_span: float = 0.125, kink_angle_deg: float = 30.0, mesh_weight: float = 1.0,
-                on_progress: Callable[[float, str], None] | None = None) -> FitResult:
+                params: FitParams, *, other_quads: np.ndarray | None = None, sharp_edges: np.ndarray | None = None,
+                progress: Progress | None = None, check_cancel: CheckCancel | None = None) -> FitResult:
     """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
 
     vertices float64 (k, 3) mm: quad-mesh vertices; grids: per patch int (R + 1, C + 1) vertex ids
     (see `cam.fit.grid.patch_grid`); mesh_vertices float64 (n, 3) mm and mesh_faces int (m, 3):
     the triangle mesh to fit; other_quads int (q, 4): quads in no patch (their mesh samples are
     not fitted). sharp_edges int (e, 2): quad-mesh vertex pairs on sharp edges; patch borders
-    along them are moved onto the mesh's creases (edges sharper than `crease_angle_deg`) found
-    within `snap_radius` quad edges. knot_spacing: quads per knot span to start with;
-    samples_per_face: mesh points taken inside each triangle besides its corners (0, 1, 3, 6 or
-    10). max_samples_per_quad: the fit uses at most this many samples per patch quad on average
-    (an evenly strided subset; a fine reconstructed mesh has ~100), None: all of them; the
-    reported errors are measured on every sample either way. min_span: refinement halves knot spans,
-    never below min_span quads. kink_angle_deg: where a patch side turns by more than this at a
-    vertex (it runs round a corner of the part), its surface gets a C0 knot line there.
-    mesh_weight: weight of the surface's own points drawn onto the mesh, against the samples' 1
-    (`cam.fit.solve.fit_surface`; 0: samples only).
-    on_progress (fraction, message) is called between patches (it may raise to stop the fit).
+    along them are moved onto the mesh's creases (edges sharper than `params.crease_angle_deg`) found
+    within `params.snap_radius_quads` quad edges.
+
+    params: the fit's group with `tolerance_mm` resolved (`JobParams.effective("fit")`); its
+    knot_spacing_quads: quads per knot span to start with; samples_per_face: mesh points taken inside
+    each triangle besides its corners; max_samples_per_quad: the fit uses at most this many samples
+    per patch quad on average (an evenly strided subset; a fine reconstructed mesh has ~100), None:
+    all of them; the reported errors are measured on every sample either way; max_refinements,
+    iterations, smoothing_mm2, normal_weight_mm: see `cam.fit.refine.fit_refined` and
+    `cam.fit.solve.fit_surface`. `require_tolerance` is the caller's to act on (`FitResult.over_tolerance`).
+
+    progress(fraction, message=None) is called between patches; check_cancel() between patches and
+    inside each patch's fit (it raises to stop the fit). Raises `GeometryError` (e.g.
+    `cam.fit.boundary.PatchLayoutError`) where the patches cannot be fitted as given, ValueError for
+    arguments no caller should pass (shapes, ids, an unresolved tolerance).
     """
+    return _fit_patches(vertices, grids, mesh_vertices, mesh_faces, params, other_quads=other_quads,
+                        sharp_edges=sharp_edges, progress=progress, check_cancel=check_cancel)
+
+
+def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
+                 params: FitParams, *, other_quads: np.ndarray | None = None, sharp_edges: np.ndarray | None = None,
+                 progress: Progress | None = None, check_cancel: CheckCancel | None = None,
+                 smoothing_floor: float = 1e-6, param_weight: float = 0.01, anchor_weight: float = 1.0,
+                 min_span_quads: float = 0.125, kink_angle_deg: float = 30.0, mesh_weight: float = 1.0) -> FitResult:
+    """`fit_patches` with the fit's inner weights open to change (tests and benches; no user sets them).
+
+    smoothing_floor, param_weight, anchor_weight: see `cam.fit.solve.fit_surface`. min_span_quads:
+    refinement halves knot spans, never below this many quads. kink_angle_deg: where a patch side
+    turns by more than this at a vertex (it runs round a corner of the part), its surface gets a C0
+    knot line there. mesh_weight: weight of the surface's own points drawn onto the mesh, against the
+    samples' 1 (`cam.fit.solve.fit_surface`; 0: samples only).
+    """
+    tolerance_mm = params.tolerance_mm
+    knot_spacing_quads = params.knot_spacing_quads
+    max_samples_per_quad = params.max_samples_per_quad
+    max_refinements = params.max_refinements
+    if tolerance_mm is None:
+        raise ValueError("params.tolerance_mm is None: the fit needs the group with its tolerance resolved, "
+                         "as JobParams.effective(\"fit\") returns it")
     if not tolerance_mm > 0:
         raise ValueError(f"tolerance_mm must be positive, got {tolerance_mm}")
-    if not knot_spacing > 0:
-        raise ValueError(f"knot_spacing must be positive, got {knot_spacing}")
+    if not knot_spacing_quads > 0:
+        raise ValueError(f"knot_spacing_quads must be positive, got {knot_spacing_quads}")
     if max_samples_per_quad is not None and not max_samples_per_quad > 0:
         raise ValueError(f"max_samples_per_quad must be positive or None, got {max_samples_per_quad}")
     V = np.asarray(vertices, dtype=np.float64)
     if V.ndim != 2 or V.shape[1] != 3:
         raise ValueError(f"vertices must have shape (k, 3), got {V.shape}")
+    if not len(grids):
+        raise GeometryError("there is no patch to fit: every patch of the layout was left out")
     grids = [np.asarray(g, dtype=np.int64) for g in grids]
     for k, g in enumerate(grids):
         if g.ndim != 2 or min(g.shape) < 2:
             raise ValueError(f"grid {k} must be (R + 1, C + 1) with R, C >= 1, got shape {g.shape}")
         if g.min() < 0 or g.max() >= len(V):
             raise ValueError(f"grid {k} refers to vertex ids outside 0..{len(V) - 1}")
-    report = on_progress or (lambda f, m: None)
+    report = progress or (lambda fraction, message=None: None)
+    cancel = check_cancel or (lambda: None)
+    crease_angle_deg = params.crease_angle_deg
     layout = boundary_layout(grids)
     index = mesh_index(mesh_vertices, mesh_faces)
-    opts = dict(smoothing_mm2=smoothing_mm2, smoothing_floor=smoothing_floor, param_weight=param_weight,
-                normal_weight_mm=normal_weight_mm, anchor_weight=anchor_weight, iterations=iterations,
-                mesh=index if mesh_weight > 0 else None, mesh_weight=mesh_weight)
+    opts = dict(smoothing_mm2=params.smoothing_mm2, smoothing_floor=smoothing_floor, param_weight=param_weight,
+                normal_weight_mm=params.normal_weight_mm, anchor_weight=anchor_weight, iterations=params.iterations,
+                mesh=index if mesh_weight > 0 else None, mesh_weight=mesh_weight, check_cancel=cancel)
     sharp = edge_keys(sharp_edges)
     creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg) if sharp else None
-    positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases, snap_radius=snap_radius)
-    P_all, N_all = mesh_samples(mesh_vertices, mesh_faces, per_face=samples_per_face)
+    positions = vertex_positions(V, grids, index, sharp=sharp, creases=creases,
+                                 snap_radius_quads=params.snap_radius_quads)
+    P_all, N_all = mesh_samples(mesh_vertices, mesh_faces, per_face=params.samples_per_face)
     # Samples go to the quad nearest them once the grid vertices sit where the fit puts them:
     # the remesher's sharp edges run up to a quad beside the crease, and a sample on the far
     # face (the neighbour's, or the unfitted base's) would otherwise belong to this patch.
@@ -175,7 +203,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     use = _thin(asg_all.patch, grids, max_samples_per_quad)
     P, N = P_all[use], N_all[use]
     owner, su, sv = asg_all.patch[use], asg_all.u[use], asg_all.v[use]
-    anchors = [grid_anchors(V, g, index, spacing=knot_spacing, positions=positions) for g in grids]
+    anchors = [grid_anchors(V, g, index, knot_spacing_quads=knot_spacing_quads, positions=positions) for g in grids]
     sharp_side = {(k, name): _is_sharp(side_vertices(g, name), sharp) for k, g in enumerate(grids) for name in SIDES}
     # A side that turns a corner needs a C0 knot line there in the free fit already: a smooth
     # surface cuts the corner, and the boundary curves are fitted to where the free fits' borders lie.
@@ -195,16 +223,16 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
 
     def free_fit(k: int, start: SurfaceFit | None) -> Refined:
         R, C = shape[k]
-        kw = dict(knots_u=merge_knots(lattice_knots(0, R, knot_spacing), np.repeat(kinks[(k, "v0")], 3),
+        kw = dict(knots_u=merge_knots(lattice_knots(0, R, knot_spacing_quads), np.repeat(kinks[(k, "v0")], 3),
                                       np.repeat(kinks[(k, "v1")], 3)),
-                  knots_v=merge_knots(lattice_knots(0, C, knot_spacing), np.repeat(kinks[(k, "u0")], 3),
+                  knots_v=merge_knots(lattice_knots(0, C, knot_spacing_quads), np.repeat(kinks[(k, "u0")], 3),
                                       np.repeat(kinks[(k, "u1")], 3)))
         if start is not None:
             kw = dict(knots_u=start.knots_u, knots_v=start.knots_v, control_points=start.control_points)
         pts, nrm, u, v = data(k)
         pull = tuple(not sharp_side[(k, name)] for name in SIDES)
         return fit_refined(pts, nrm, u, v, tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                           max_refinements=max_refinements, min_span=min_span, pull_sides=pull, **kw, **opts)
+                           max_refinements=max_refinements, min_span=min_span_quads, pull_sides=pull, **kw, **opts)
 
     # The free fits are refined for their borders, where the boundary curves are fitted. The
     # constrained fits start from the first free fits, before refinement (and before samples moved:
@@ -213,19 +241,24 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
     # no tolerance sees, concave tighter than the ball). They refine themselves where they need it.
     free: list[Refined] = []
     for k in range(n):
+        cancel()
         free.append(free_fit(k, None))
         report(0.35 * (k + 1) / n, f"fitted patch {k + 1} of {n} on its own")
     coarse = [f.unrefined for f in free]
-    moved = _reassign(P, owner, su, sv, [f.fit for f in free], layout, tolerance_mm)
+    moved = _reassign(P, owner, su, sv, [f.fit for f in free], layout, tolerance_mm, check_cancel=cancel)
     for k in sorted(moved):
+        cancel()
         free[k] = free_fit(k, free[k].fit)
     report(0.4, "fitting the shared boundary curves")
     curves, curve_err = _fit_curves(layout, grids, shape, [f.fit for f in free], positions, index, creases, sharp,
-                                    knot_spacing, tolerance_mm, max_refinements, min_span, kink_angle_deg)
+                                    knot_spacing_quads=knot_spacing_quads, tolerance_mm=tolerance_mm,
+                                    max_refinements=max_refinements, min_span_quads=min_span_quads,
+                                    kink_angle_deg=kink_angle_deg, check_cancel=cancel)
     final: list[SurfaceFit] = []
     rounds: list[int] = []
     peaks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for k in range(n):
+        cancel()
         ku, kv, cp = _constrained_start(k, layout, coarse[k], curves)
         pts, nrm, u, v = data(k)
         # The final surfaces are drawn onto the mesh on a lattice an eighth of a quad apart, the free
@@ -233,18 +266,19 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         # tolerance (a bump's fit, 0.03204 mm), and the free fits only place the borders.
         done = fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
                            tolerance_mm=tolerance_mm, lengths_mm=lengths[k], anchors=anchors[k],
-                           max_refinements=max_refinements, min_span=min_span, mesh_spacing=0.125,
+                           max_refinements=max_refinements, min_span=min_span_quads, mesh_spacing=0.125,
                            mesh_edges=True, **opts)
         final.append(done.fit)
         rounds.append(done.rounds)
         peaks.append(done.peaks)
         report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
     report(0.92, "measuring every mesh sample against the surfaces")
-    errors = _sample_errors(P_all, asg_all.patch, final, layout, tolerance_mm)
+    errors = _sample_errors(P_all, asg_all.patch, final, layout, tolerance_mm, check_cancel=cancel)
     if creases is None:
         creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=crease_angle_deg)
     out = []
     for k in range(n):
+        cancel()
         R, C = shape[k]
         fit = final[k]
         surf = make_bspline_surface(fit.control_points, fit.knots_u / R, fit.knots_v / C)
@@ -279,13 +313,20 @@ def _lengths(V: np.ndarray, g: np.ndarray) -> tuple[float, float]:
     return float(max(lu, 1e-9)), float(max(lv, 1e-9))
 
 
-def _reassign(P, owner, su, sv, fits, layout: Layout, tol: float) -> set[int]:
-    """Move samples that lie beyond their patch's border to a neighbour that is closer; returns changed patches."""
+def _reassign(P, owner, su, sv, fits, layout: Layout, tolerance_mm: float, *,
+              check_cancel: CheckCancel | None = None) -> set[int]:
+    """Move samples that lie beyond their patch's border to a neighbour that is closer; returns changed patches.
+
+    P float64 (n, 3) mm; owner int (n,) patch per sample, su, sv float64 (n,) its parameters (quads):
+    all three updated in place for the samples that move.
+    """
     changed: set[int] = set()
     before = owner.copy()  # the fits' sample order; moves are applied to `owner` as they are found
     for k, fit in enumerate(fits):
+        if check_cancel is not None:
+            check_cancel()
         idx = np.flatnonzero(before == k)
-        far = fit.clamped[: idx.size] & (fit.distance[: idx.size] > 0.5 * tol)
+        far = fit.clamped[: idx.size] & (fit.distance[: idx.size] > 0.5 * tolerance_mm)
         cand = idx[far]
         if not cand.size or not layout.neighbours[k]:
             continue
@@ -307,9 +348,11 @@ def _reassign(P, owner, su, sv, fits, layout: Layout, tol: float) -> set[int]:
     return changed
 
 
-def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, sharp, spacing: float, tol: float,
-                max_refinements: int, min_span: float, kink_angle_deg: float) -> tuple[list[CurveFit], list[float]]:
-    """Fit each boundary curve once, through its junction points.
+def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, sharp, *, knot_spacing_quads: float,
+                tolerance_mm: float, max_refinements: int, min_span_quads: float, kink_angle_deg: float,
+                check_cancel: CheckCancel | None = None) -> tuple[list[CurveFit], list[float]]:
+    """Fit each boundary curve once, through its junction points, to half the patches' tolerance (mm);
+    knots start `knot_spacing_quads` apart and are halved down to `min_span_quads`.
 
     A curve is fitted piecewise and joined C0 where its vertices turn by more than
     `kink_angle_deg` (a patch side that runs round a corner of the part: one cubic cannot turn
@@ -331,6 +374,8 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
             samples[pc.curve].append((q, h))
     fits, errs = [], []
     for c, spec in enumerate(layout.curves):
+        if check_cancel is not None:
+            check_cancel()
         verts = np.asarray(spec.vertices)
         pts = positions[verts]
         cuts = [0, *_kinks(pts, kink_angle_deg).tolist(), len(verts) - 1]
@@ -357,8 +402,9 @@ def _fit_curves(layout: Layout, grids, shape, free, positions, index, creases, s
                 return closest_points(index, _polyline_at(seg, np.interp(t, tau, np.arange(len(seg)))))[0]
 
             slide = _slide_ranges(on, tau, h, exact)
-            parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, spacing), constraints=cons, length_mm=length,
-                                   tolerance_mm=0.5 * tol, max_refinements=max_refinements, min_span=min_span,
+            parts.append(fit_curve(q, h, knots=lattice_knots(lo, hi, knot_spacing_quads), constraints=cons,
+                                   length_mm=length, tolerance_mm=0.5 * tolerance_mm,
+                                   max_refinements=max_refinements, min_span=min_span_quads,
                                    closest=lambda p: _feet_and_normals(index, p), project=on_mesh,
                                    slide=slide, exact=exact))
         knots, cp = join_curves([(f.knots, f.control_points) for f in parts])
@@ -516,28 +562,32 @@ def _constrained_start(k: int, layout: Layout, free: SurfaceFit, curves):
     return ku, kv, cp
 
 
-def _sample_errors(P, owner, fits, layout: Layout, tol: float) -> np.ndarray:
-    """Distance of every assigned sample to the fitted surfaces (own, or a neighbour where closer).
+def _sample_errors(P, owner, fits, layout: Layout, tolerance_mm: float, *,
+                   check_cancel: CheckCancel | None = None) -> np.ndarray:
+    """Distance (mm, float64 (n,), NaN where unassigned) of every assigned sample P (n, 3) to the fitted
+    surfaces (own, or a neighbour where closer).
 
     Measured afresh on all samples, not taken from the fit, which may have used a subset; a
     distance over the tolerance is searched for span by span before it counts.
     """
     err = np.full(len(P), np.nan)
     for k, fit in enumerate(fits):
+        if check_cancel is not None:
+            check_cancel()
         idx = np.flatnonzero(owner == k)
         if not idx.size:
             continue
-        d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx], search_above=tol)[2]
+        d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx], search_above=tolerance_mm)[2]
         # Every far sample, not only those whose foot is on the border: where the quad mesh cuts
         # a corner of the part, a sample can take a strip's quad and a foot inside the strip
         # while the neighbour's surface passes through it.
         for nb in layout.neighbours[k]:
-            far = np.flatnonzero(d > tol)
+            far = np.flatnonzero(d > tolerance_mm)
             if not far.size:
                 break
             f = fits[nb]
             d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]],
-                                                            search_above=tol)[2])
+                                                            search_above=tolerance_mm)[2])
         err[idx] = d
     return err
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cam import CheckCancel
 from cam.fit.measure import surface_peaks
 from cam.fit.solve import SurfaceFit, fit_surface
 from cam.spline.basis import find_spans
@@ -67,7 +68,7 @@ def border_mask(shape: tuple[int, int]) -> np.ndarray:
 def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
                 knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
                 tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, min_gain: float = 0.1,
-                border_band: float = 0.5, **options) -> Refined:
+                border_band: float = 0.5, check_cancel: CheckCancel | None = None, **options) -> Refined:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
     fix_border keeps the outer ring of control points (knot insertion moves no boundary curve,
@@ -79,14 +80,16 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     (at most a quarter of the domain's narrower side, so a patch one quad wide still refines in its
     middle) unless farther from the mesh than the border is. Two rounds in a row that each lower the
     error beyond the tolerance (`SurfaceFit.excess`) of the best fit so far by less than the fraction
-    `min_gain` end the refinement.
+    `min_gain` end the refinement. check_cancel() is called before every round and every step of
+    `fit_surface` (it raises to stop the fit).
     Returns the best fit, the rounds used and the unrefined fit (`Refined`).
     """
     mode = "drop" if fix_border else "pull"
     cp = None if control_points is None else np.asarray(control_points, dtype=np.float64)
     fixed = None if cp is None or not fix_border else border_mask(cp.shape[:2])
     fit = fit_surface(points, normals, u, v, knots_u=knots_u, knots_v=knots_v, control_points=cp, fixed=fixed,
-                      tolerance_mm=tolerance_mm, clamped_samples=mode, warm=False, **options)
+                      tolerance_mm=tolerance_mm, clamped_samples=mode, warm=False, check_cancel=check_cancel,
+                      **options)
     first, rounds, weak = fit, 0, 0
     # The peaks between the lattice's points count for the final surfaces only (inside fixed borders):
     # a free fit places its borders, which its lattice measures, and searching its inside too
@@ -96,6 +99,8 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     # `best` is what is returned; `fit` what the next round refines (after a weak round, its refit).
     best, best_peaks = fit, peaks
     while rounds < max_refinements and max(fit.max_error, peaks[2].max(initial=0.0)) > tolerance_mm:
+        if check_cancel is not None:
+            check_cancel()
         bad = (fit.distance > tolerance_mm) & ~fit.clamped  # spans with data inside, not border reach
         # Spans where the surface leaves the mesh: on the fit's lattice, and where the search between
         # its points finds it (a fit within tolerance on the lattice can still be beyond it there).
@@ -125,7 +130,8 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         refit = fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
                             fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
                             clamped_samples=mode, warm=not fix_border,
-                            mesh_points=(peaks[0], peaks[1]) if peaks[0].size else None, **options)
+                            mesh_points=(peaks[0], peaks[1]) if peaks[0].size else None,
+                            check_cancel=check_cancel, **options)
         refit_peaks = _peaks(mesh, refit)
         improved = refit.folded <= best.folded and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm)
         # Each round can multiply the control points by four; two rounds in a row that gain little

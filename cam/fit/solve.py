@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
+from cam import CheckCancel
 from cam.fit.param import Anchors, foot_frames, project_points
 from cam.mesh.closest import MeshIndex, closest_points, triangle_normals
 from cam.spline.basis import (
@@ -112,7 +113,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
                 mesh: MeshIndex | None = None, mesh_weight: float = 1.0, mesh_spacing: float = 0.25,
                 mesh_edges: bool = False, mesh_points: tuple[np.ndarray, np.ndarray] | None = None,
-                degree: tuple[int, int] = (3, 3)) -> SurfaceFit:
+                degree: tuple[int, int] = (3, 3), check_cancel: CheckCancel | None = None) -> SurfaceFit:
     """Fit a B-spline surface with the given knots to samples, keeping `fixed` control points.
 
     points, normals float64 (n, 3) (mm, unit mesh normals); u, v float64 (n,) starting parameters
@@ -148,7 +149,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     Stops when the largest distance is within tolerance and no longer improving, when it stops
     improving, or after `iterations` steps; returns the best step seen: the least folded, and of
     those the closest (`SurfaceFit.improves_on`). A step that folds the net more is taken again
-    from the best one, damped (Levenberg-Marquardt).
+    from the best one, damped (Levenberg-Marquardt). check_cancel() is called before every step (it
+    raises to stop the fit).
     """
     P = np.asarray(points, dtype=np.float64)
     Nm = np.asarray(normals, dtype=np.float64)
@@ -187,6 +189,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     patience = 4 if clamped_samples == "pull" else 2
     damping = 0.0
     for it in range(iterations + 1):
+        if check_cancel is not None:
+            check_cancel()
         u, v, dist = project_points(ku, kv, cp, P, u, v, degree=degree)
         frame = foot_frames(ku, kv, cp, u, v, degree=degree)
         r = P - frame.point

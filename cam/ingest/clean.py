@@ -11,6 +11,10 @@ normal; they are then scaled to unit length. If any kept point lacks one, all
 normals are discarded (``has_normals`` false, ``normals_note`` says how many
 were bad) and ``reconstruct`` estimates and orients normals for the whole
 cloud, which is more reliable than mixing given and estimated ones.
+
+What a user can change (a file with too few or too many usable points, a mesh with no usable face,
+a corrupt face list) raises :class:`IngestError`, a :class:`~cam.GeometryError`; arrays of the wrong
+shape or dtype are a caller's bug and raise ``ValueError``.
 """
 
 from __future__ import annotations
@@ -20,14 +24,17 @@ from typing import Any
 
 import numpy as np
 
+from cam import GeometryError
 from cam.mesh.rows import first_occurrences
+from cam.params import IngestParams
 
-__all__ = ["CleanCloud", "CleanMesh", "IngestError", "clean_cloud", "clean_mesh"]
+__all__ = ["MM_PER_UNIT", "CleanCloud", "CleanMesh", "IngestError", "clean_cloud", "clean_mesh"]
 
-_INCH_MM = 25.4
+#: Millimetres per unit of the uploaded coordinates, for each value of `IngestParams.units`.
+MM_PER_UNIT = {"mm": 1.0, "inch": 25.4}
 
 
-class IngestError(ValueError):
+class IngestError(GeometryError):
     """The upload cannot become a usable cloud or mesh; the message tells the user why and what to do."""
 
 
@@ -63,12 +70,11 @@ class CleanMesh:
 def clean_cloud(
     points: np.ndarray,
     normals: np.ndarray | None = None,
+    params: IngestParams = IngestParams(),
     *,
-    scale_to_mm: float,
     min_points: int,
     max_points: int,
     format: str | None = None,
-    units: str | None = None,
     notes: tuple[str, ...] | list[str] = (),
 ) -> CleanCloud:
     """Scale a point cloud to mm and drop what no later stage can use.
@@ -76,18 +82,17 @@ def clean_cloud(
     Parameters
     ----------
     points
-        (n, 3) coordinates in the file's units.
+        (n, 3) numeric coordinates in the file's units (``params.units``).
     normals
-        (n, 3) normals or None; see the module docstring for when they are kept.
-    scale_to_mm
-        Millimetres per file unit (1 for mm, 25.4 for inch); > 0.
+        (n, 3) numeric normals or None; see the module docstring for when they are kept.
+    params
+        ``units``: the file's unit, scaled to mm by :data:`MM_PER_UNIT`.
     min_points, max_points
-        Bounds on the points that remain.
-    format, units, notes
+        Bounds on the points that remain (the operator's settings).
+    format, notes
         Copied into the report: ``format`` only when given (so a caller's own
-        value survives a dict merge), ``units`` defaulting to ``"mm"`` /
-        ``"inch"`` / ``"custom"`` from ``scale_to_mm``, ``notes`` being the
-        reader's notes (:attr:`cam.io.InputData.notes`).
+        value survives a dict merge), ``notes`` being the reader's notes
+        (:attr:`cam.io.InputData.notes`).
 
     Returns
     -------
@@ -101,12 +106,14 @@ def clean_cloud(
     IngestError
         When no point has finite coordinates, or fewer than ``min_points`` or
         more than ``max_points`` remain.
+    ValueError
+        When ``points`` or ``normals`` are not (n, 3) numeric arrays of the same length.
     """
-    scale = _check_scale(scale_to_mm)
+    mm_per_unit = MM_PER_UNIT[params.units]
     pts = _rows("points", points)
     nrm = None if normals is None else _rows("normals", normals)
     if nrm is not None and len(nrm) != len(pts):
-        raise IngestError(f"there are {len(nrm)} normals for {len(pts)} points; pass one per point")
+        raise ValueError(f"there are {len(nrm)} normals for {len(pts)} points; pass one per point")
     read = len(pts)
     if read == 0:
         raise IngestError("the file holds no points")
@@ -114,7 +121,7 @@ def clean_cloud(
 
     # Scale first so that coordinates overflowing to Inf are caught as non-finite.
     with np.errstate(over="ignore", invalid="ignore"):
-        pts = pts * scale
+        pts = pts * mm_per_unit
     finite = np.isfinite(pts).all(axis=1)
     if not finite.any():
         raise IngestError(
@@ -147,8 +154,8 @@ def clean_cloud(
     nrm, note = _clean_normals(nrm)
     report = {
         "kind": "cloud",
-        "units": units or _unit_name(scale),
-        "scale_to_mm": scale,
+        "units": params.units,
+        "scale_to_mm": mm_per_unit,
         "counts": {"read": read, "kept": kept},
         "dropped": dropped,
         "has_normals": nrm is not None,
@@ -164,11 +171,10 @@ def clean_cloud(
 def clean_mesh(
     vertices: np.ndarray,
     faces: np.ndarray,
+    params: IngestParams = IngestParams(),
     *,
-    scale_to_mm: float,
     max_points: int,
     format: str | None = None,
-    units: str | None = None,
     notes: tuple[str, ...] | list[str] = (),
 ) -> CleanMesh:
     """Scale a triangle mesh to mm and remove what would break reconstruction-free processing.
@@ -182,10 +188,10 @@ def clean_mesh(
     Parameters
     ----------
     vertices
-        (n, 3) coordinates in the file's units.
+        (n, 3) numeric coordinates in the file's units (``params.units``).
     faces
         (m, 3) integer indices into ``vertices``.
-    scale_to_mm, max_points, format, units, notes
+    params, max_points, format, notes
         As for :func:`clean_cloud`; ``max_points`` bounds the vertices kept.
 
     Returns
@@ -197,14 +203,16 @@ def clean_mesh(
     Raises
     ------
     IngestError
-        For indices out of range, no face left, or more than ``max_points``
-        vertices.
+        For indices out of range (a corrupt file), no face left, or more than
+        ``max_points`` vertices.
+    ValueError
+        When ``vertices`` is not an (n, 3) numeric array or ``faces`` not (m, 3) integers.
     """
-    scale = _check_scale(scale_to_mm)
+    mm_per_unit = MM_PER_UNIT[params.units]
     verts = _rows("vertices", vertices)
     tris = np.asarray(faces)
     if tris.ndim != 2 or tris.shape[1] != 3 or (tris.size and tris.dtype.kind not in "iu"):
-        raise IngestError(f"faces must be (m, 3) vertex indices, got shape {tris.shape} dtype {tris.dtype}")
+        raise ValueError(f"faces must be (m, 3) vertex indices, got shape {tris.shape} dtype {tris.dtype}")
     tris = tris.astype(np.int64)
     read, faces_read = len(verts), len(tris)
     if faces_read and (tris.min() < 0 or tris.max() >= read):
@@ -214,7 +222,7 @@ def clean_mesh(
         )
     dropped: list[dict[str, Any]] = []
     with np.errstate(over="ignore", invalid="ignore"):
-        verts = verts * scale
+        verts = verts * mm_per_unit
 
     finite = np.isfinite(verts).all(axis=1)
     non_finite = int(read - finite.sum())
@@ -265,8 +273,8 @@ def clean_mesh(
         )
     report = {
         "kind": "mesh",
-        "units": units or _unit_name(scale),
-        "scale_to_mm": scale,
+        "units": params.units,
+        "scale_to_mm": mm_per_unit,
         "counts": {"read": read, "kept": len(verts), "faces_read": faces_read, "faces_kept": len(tris)},
         "dropped": dropped,
         "has_normals": False,
@@ -279,19 +287,10 @@ def clean_mesh(
     return CleanMesh(vertices=verts, faces=tris, report=report)
 
 
-def _check_scale(scale_to_mm: float) -> float:
-    scale = float(scale_to_mm)
-    if not np.isfinite(scale) or scale <= 0:
-        raise IngestError(f"scale_to_mm must be a positive number, got {scale_to_mm!r}")
-    return scale
-
-
 def _rows(name: str, array: np.ndarray) -> np.ndarray:
     values = np.asarray(array)
     if values.ndim != 2 or values.shape[1] != 3 or values.dtype.kind not in "fiu":
-        raise IngestError(
-            f"{name} must be an (n, 3) numeric array, got shape {values.shape} dtype {values.dtype}"
-        )
+        raise ValueError(f"{name} must be an (n, 3) numeric array, got shape {values.shape} dtype {values.dtype}")
     return values.astype(np.float64, copy=False)
 
 
@@ -317,10 +316,6 @@ def _clean_normals(normals: np.ndarray | None) -> tuple[np.ndarray | None, str |
             "non-finite or zero-length normal; normals will be estimated for all points"
         )
     return normals / lengths[:, None], None
-
-
-def _unit_name(scale: float) -> str:
-    return {1.0: "mm", _INCH_MM: "inch"}.get(scale, "custom")
 
 
 def _bbox(points: np.ndarray) -> dict[str, Any]:

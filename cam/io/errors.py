@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from cam import GeometryError
+
 __all__ = ["ReadError", "WriteError"]
 
 
-class ReadError(ValueError):
+class ReadError(GeometryError):
     """An input file cannot be read.
 
     The message names what was found and what the user can do about it, e.g.
@@ -15,4 +17,5 @@ class ReadError(ValueError):
 
 
 class WriteError(ValueError):
-    """Arrays handed to a writer cannot be written (wrong shape, non-finite values, bad indices)."""
+    """Arrays handed to a writer cannot be written (wrong shape, non-finite values, bad indices): a bug of
+    the caller, not something the user can change."""

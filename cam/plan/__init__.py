@@ -1,6 +1,14 @@
-"""Tool paths with a certified scallop height: exact scallop relations, Algorithm 1 rings, chords, gouges, links.
+"""The `plan` stage: tool paths with a certified scallop height, programs per setup.
 
-Modules: scallop (exact relations), geometry (fundamental forms), grid (Algorithm 1), rings (contour-parallel
-rings and corner pockets), chord (points along passes), gouge (checks against all patches), access (setups),
-link (retracts and patch order), plan (the whole stage without files).
+`job.plan_job` plans every patch of every setup; `patch.plan_patch` one patch. One concept per
+module: `scallop` (the exact scallop relations), `grid` (Algorithm 1 rings), `rings` (contour-parallel
+rings joined into a spiral, corner pockets), `edge` (the first ring's inset), `chord` (points along the
+passes), `gouge` (checks against every patch), `reach` (the rectangle the ball reaches), `region`
+(the rectangle free of folds and tight hollows), `access` (setups), `link` (retracts and order),
+`errors` (what is reported instead of a plan).
 """
+
+from cam.plan.job import Plan, SetupPlan, plan_job, program_name
+from cam.plan.patch import PatchPlan, plan_patch
+
+__all__ = ["PatchPlan", "Plan", "SetupPlan", "plan_job", "plan_patch", "program_name"]

@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from cam import GeometryError
+
 __all__ = ["SMALLEST_BALL_RADIUS_MM", "NotPlannable", "TooConcave", "Unreachable", "concave_message"]
 
 
-class NotPlannable(ValueError):
+class NotPlannable(GeometryError):
     """The planner found no pass layout that keeps its bound on this patch (degenerate geometry)."""
 
 
-class Unreachable(ValueError):
+class Unreachable(GeometryError):
     """No part of the patch can be machined from this setup."""
 
 
-class TooConcave(ValueError):
+class TooConcave(GeometryError):
     """The patch holds a concave radius of curvature not larger than the tool radius."""
 
     def __init__(self, message: str, *, radius_mm: float, point: np.ndarray, uv: np.ndarray | None = None) -> None:

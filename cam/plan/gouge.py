@@ -25,6 +25,7 @@ from cam.spline.surface import (
 )
 
 __all__ = [
+    "GOUGE_TOL_MM",
     "SurfaceIndex",
     "build_index",
     "clearance",
@@ -33,6 +34,9 @@ __all__ = [
     "move_clearance",
     "shank_clear",
 ]
+
+#: How far a ball may reach into a surface and still count as clear of it (Newton's tolerance is finer).
+GOUGE_TOL_MM = 1e-5
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,19 +10,15 @@ and Adam loop), ``extract`` (marching cubes and component selection),
 
 from cam.reconstruct.normals import NormalsError, estimate_normals
 from cam.reconstruct.presets import PRESETS
-from cam.reconstruct.surface import (
-    MIN_POINTS,
-    Reconstruction,
-    ReconstructionCanceled,
-    reconstruct_surface,
-)
+from cam.reconstruct.surface import MIN_POINTS, Reconstruction, reconstruct_surface
+from cam.reconstruct.train import DivergedError
 
 __all__ = [
     "MIN_POINTS",
-    "NormalsError",
     "PRESETS",
+    "DivergedError",
+    "NormalsError",
     "Reconstruction",
-    "ReconstructionCanceled",
     "estimate_normals",
     "reconstruct_surface",
 ]

@@ -10,6 +10,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 
+from cam import CheckCancel, GeometryError
+
 __all__ = ["extract_surface", "is_watertight"]
 
 
@@ -22,7 +24,7 @@ def extract_surface(
     points: np.ndarray,
     min_share: float = 0.01,
     chunk: int = 1_048_576,
-    poll: Callable[[], None] | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Zero level set of ``evaluate`` as a closed triangle mesh.
 
@@ -38,6 +40,8 @@ def extract_surface(
     points
         float64 (n, 3) cloud; a component is kept when at least ``min_share`` of
         the points are nearest to it (the largest one is always kept).
+    check_cancel
+        Called before each slab of the lattice is evaluated; it stops the work by raising.
 
     Returns
     -------
@@ -46,6 +50,8 @@ def extract_surface(
     The border layer of the grid is forced outside, so a field that never
     turns positive near the border still yields closed (if spurious) shells,
     which then carry no points and are dropped.
+
+    Raises :class:`~cam.GeometryError` when the field is nowhere negative (no surface).
     """
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
@@ -55,8 +61,8 @@ def extract_surface(
     volume = np.empty(tuple(dims), dtype=np.float32)
     slabs = max(1, chunk // int(dims[1] * dims[2]))
     for start in range(0, dims[0], slabs):
-        if poll is not None:
-            poll()
+        if check_cancel is not None:
+            check_cancel()
         xs = axes[0][start:start + slabs]
         volume[start:start + len(xs)] = evaluate(xs, axes[1], axes[2])
     pad = float(np.abs(volume).max()) + h
@@ -65,8 +71,8 @@ def extract_surface(
     volume[:, :, [0, -1]] = pad
     report = {"grid": [int(d) for d in dims], "cell": h}
     if not (volume < 0).any():
-        raise ValueError("the trained field has no inside: no surface was found; "
-                         "train longer or check the cloud's normals")
+        raise GeometryError("the trained field has no inside: no surface was found; "
+                            "train longer or check the cloud's normals")
     verts, faces, _, _ = marching_cubes(volume, level=0.0, spacing=(h, h, h),
                                      gradient_direction="ascent", allow_degenerate=False)
     verts = verts.astype(np.float64) + lo

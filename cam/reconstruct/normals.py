@@ -10,8 +10,6 @@ sample (where all weights tie) costs no more than a curved one.
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import (
@@ -20,6 +18,8 @@ from scipy.sparse.csgraph import (
     minimum_spanning_tree,
 )
 from scipy.spatial import cKDTree
+
+from cam import CheckCancel, GeometryError
 
 __all__ = ["NormalsError", "check_normals", "estimate_normals", "orient_normals"]
 
@@ -31,8 +31,8 @@ _MAX_FLIPPED_SHARE = 0.02
 NOISE_REFERENCE = 0.25
 
 
-class NormalsError(ValueError):
-    """Normals are missing, broken or cannot be oriented; the message says what to do."""
+class NormalsError(GeometryError):
+    """Given normals are broken or estimated ones cannot be oriented; the message says what to do."""
 
 
 def check_normals(normals: np.ndarray, n_points: int) -> np.ndarray:
@@ -40,11 +40,12 @@ def check_normals(normals: np.ndarray, n_points: int) -> np.ndarray:
 
     Raises :class:`NormalsError` naming how many rows are non-finite or of
     (near) zero length; such normals carry no direction and would silently
-    bias the fit, so they are refused rather than patched.
+    bias the fit, so they are refused rather than patched. A shape other than
+    (n_points, 3) is the caller's bug: ``ValueError``.
     """
     nrm = np.asarray(normals, dtype=np.float64)
     if nrm.shape != (n_points, 3):
-        raise NormalsError(f"normals must have shape ({n_points}, 3) like the points, got {nrm.shape}")
+        raise ValueError(f"normals must have shape ({n_points}, 3) like the points, got {nrm.shape}")
     finite = np.isfinite(nrm).all(axis=1)
     length = np.linalg.norm(np.where(finite[:, None], nrm, 0.0), axis=1)
     bad = ~finite | (length < 1e-12)
@@ -62,7 +63,7 @@ def estimate_normals(
     k: int = 16,
     noise_adaptive: bool = True,
     workers: int = 1,
-    should_cancel: Callable[[], bool] | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Estimate and orient unit normals for a cloud.
 
@@ -83,9 +84,8 @@ def estimate_normals(
         round its sharp edges.
     workers
         Threads for the k-NN query.
-    should_cancel
-        Called between phases; it stops the work by raising (its return value
-        is ignored).
+    check_cancel
+        Called between phases; it stops the work by raising.
 
     Returns
     -------
@@ -103,21 +103,21 @@ def estimate_normals(
     tree = cKDTree(pts)
     dist, idx = tree.query(pts, k=k + 1, workers=workers)
     dist, idx = dist[:, 1:], idx[:, 1:]
-    if should_cancel is not None:
-        should_cancel()
+    if check_cancel is not None:
+        check_cancel()
     normals, residual = _pca_normals(pts, idx)
     noise = float(np.median(residual) / max(float(np.median(dist[:, 0])), 1e-300))
     wider = min(4 * k, int(round(k * noise / NOISE_REFERENCE)), len(pts) - 1)
     if noise_adaptive and wider > k:
-        if should_cancel is not None:
-            should_cancel()
+        if check_cancel is not None:
+            check_cancel()
         k = wider
         dist, idx = tree.query(pts, k=k + 1, workers=workers)
         dist, idx = dist[:, 1:], idx[:, 1:]
         normals, _ = _pca_normals(pts, idx)
     normals, components = orient_normals(pts, normals, idx, dist)
-    if should_cancel is not None:
-        should_cancel()
+    if check_cancel is not None:
+        check_cancel()
     dots = np.einsum("ij,ikj->ik", normals, normals[idx])
     parallel = np.abs(dots) > 0.7
     flipped = (dots < -0.7) & parallel

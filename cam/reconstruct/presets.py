@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from cam import GeometryError
+
 __all__ = ["PRESETS", "resolve_options"]
 
 # Keys: field ("grid" | "mlp"); grid_cells and levels (grid: finest cells along the longest side,
@@ -50,7 +52,12 @@ _BOUNDS = {
 
 
 def resolve_options(preset: str, **overrides: Any) -> dict[str, Any]:
-    """The preset's options with every non-None override applied, bounds checked."""
+    """The preset's options with every non-None override applied, bounds checked.
+
+    An unknown preset or an override out of bounds is ``ValueError`` (`ReconstructParams` rules both
+    out); a width given to the grid preset is a :class:`~cam.GeometryError` (the parameters allow it,
+    the preset does not).
+    """
     if preset not in PRESETS:
         raise ValueError(f"unknown reconstruction preset {preset!r}; use one of {', '.join(PRESETS)}")
     opts = dict(PRESETS[preset])
@@ -62,5 +69,5 @@ def resolve_options(preset: str, **overrides: Any) -> dict[str, Any]:
             raise ValueError(f"{name} must lie in [{low}, {high}], got {value}")
         opts[name] = int(value) if isinstance(low, int) else float(value)
     if opts["field"] == "grid" and overrides.get("width") is not None:
-        raise ValueError(f"width and depth apply to the mlp and paper presets, not to {preset!r}")
+        raise GeometryError(f"width and depth apply to the mlp and paper presets, not to {preset!r}")
     return opts

@@ -11,10 +11,10 @@ oriented sample, which is correct for a closed, densely sampled surface).
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 from scipy.spatial import cKDTree
+
+from cam import CheckCancel
 
 __all__ = ["plane_distance"]
 
@@ -29,7 +29,7 @@ def plane_distance(
     workers: int = 1,
     tree: cKDTree | None = None,
     max_distance: float = np.inf,
-    should_cancel: Callable[[], bool] | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> np.ndarray:
     """Blended point-to-tangent-plane distance, float64 (m,), same unit as the points.
 
@@ -47,6 +47,8 @@ def plane_distance(
         Only samples this close are blended; a query with none gets NaN. The
         bound makes the k-d tree prune, which matters for the many grid
         vertices far from the cloud (unbounded queries there cost ten times more).
+    check_cancel
+        Called before each chunk of queries; it stops the work by raising.
     """
     tree = tree if tree is not None else cKDTree(points)
     k = int(min(k, len(points)))
@@ -54,8 +56,8 @@ def plane_distance(
     width2 = (2.0 * spacing) ** 2
     step = 65_536  # about a second per chunk on a busy core, so a cancel is seen promptly
     for start in range(0, len(queries), step):
-        if should_cancel is not None:
-            should_cancel()
+        if check_cancel is not None:
+            check_cancel()
         q = queries[start:start + step]
         dist, idx = tree.query(q, k=k, workers=workers, distance_upper_bound=max_distance)
         if k == 1:

@@ -20,10 +20,10 @@ clusters of flat faces surround it, their planes meet at more than
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 from scipy.spatial import cKDTree
+
+from cam import CheckCancel
 
 __all__ = ["sharpen_creases"]
 
@@ -44,7 +44,7 @@ def sharpen_creases(
     crease_deg: float = 30.0,
     reach: float = 8.0,
     workers: int = 1,
-    poll: Callable[[], None] | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Move bevel vertices onto the crease's face planes and split edges at the crease.
 
@@ -70,7 +70,7 @@ def sharpen_creases(
         far enough that the field's rounding next to the crease does not tilt them.
     workers
         Threads for the k-NN queries.
-    poll
+    check_cancel
         Called between the phases (a few seconds apart on a million faces); it
         stops the work by raising.
 
@@ -92,12 +92,12 @@ def sharpen_creases(
     normal = cross / np.maximum(2.0 * area, 1e-300)[:, None]
     centre = tri.mean(axis=1)
 
-    poll = poll or (lambda: None)
+    check_cancel = check_cancel or (lambda: None)
     flat = _flat_faces(centre, normal, area, feature_size, np.cos(np.radians(flat_deg)), workers)
-    poll()
+    check_cancel()
     planes, on_a = _vertex_planes(verts, faces, centre, normal, area, flat, feature_size, reach * feature_size,
                                   np.cos(np.radians(cluster_deg)), np.cos(np.radians(crease_deg)), workers)
-    poll()
+    check_cancel()
     moved = planes["ok"].copy()
     new_verts = verts.copy()
     new_verts[moved] = planes["foot"][moved]
@@ -130,7 +130,7 @@ def sharpen_creases(
     pn[moved] = side_n[moved]
     pd[moved] = side_d[moved]
 
-    poll()
+    check_cancel()
     out_verts, out_faces, n_split = _split_crossing_edges(new_verts, faces, moved_normal, pn, pd, moved,
                                                           np.cos(np.radians(crease_deg)))
     return out_verts, out_faces, {"moved": int(moved.sum()), "split": int(n_split)}
@@ -294,7 +294,7 @@ def _triangulate(faces, inverse, split, n_verts):
         mm = np.roll(m, -r, axis=1)
         ss = np.roll(s, -r, axis=1)
         v0, v1, v2 = f[:, 0], f[:, 1], f[:, 2]
-        m01, m12, m20 = mm[:, 0], mm[:, 1], mm[:, 2]
+        m01, m12 = mm[:, 0], mm[:, 1]
         one = (count == 1) & ss[:, 0]
         out.append(np.stack([v0, m01, v2], 1)[one])
         out.append(np.stack([m01, v1, v2], 1)[one])

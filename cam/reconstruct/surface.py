@@ -4,18 +4,26 @@ The cloud is centred and scaled into the unit ball, normals are checked or
 estimated, a signed distance f is trained with the IGR loss, and its zero
 level set is extracted with marching cubes and mapped back to the input's
 frame and units.
+
+What the user can change (too few or only duplicate points, a collinear or flat cloud, normals that
+cannot be oriented, a diverging run, a field with no inside) raises a :class:`~cam.GeometryError`
+(:class:`~cam.reconstruct.normals.NormalsError` and :class:`~cam.reconstruct.train.DivergedError`
+are ones); arrays of the wrong shape, non-finite coordinates and options that `ReconstructParams`
+rules out are a caller's bug and raise ``ValueError``.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from cam import CheckCancel, GeometryError, Progress, progress_between
+from cam.params import ReconstructParams
 from cam.reconstruct.extract import extract_surface, is_watertight
 from cam.reconstruct.fields import GridField, IGRNetwork
 from cam.reconstruct.normals import check_normals, estimate_normals
@@ -24,13 +32,9 @@ from cam.reconstruct.prior import plane_distance
 from cam.reconstruct.sharpen import sharpen_creases
 from cam.reconstruct.train import TrainSettings, train_igr
 
-__all__ = ["Reconstruction", "ReconstructionCanceled", "reconstruct_surface"]
+__all__ = ["MIN_POINTS", "Reconstruction", "reconstruct_surface"]
 
 MIN_POINTS = 100
-
-
-class ReconstructionCanceled(Exception):
-    """``should_cancel`` returned True; the reconstruction stopped early."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,25 +54,12 @@ class Reconstruction:
 def reconstruct_surface(
     points: np.ndarray,
     normals: np.ndarray | None = None,
+    params: ReconstructParams = ReconstructParams(),
     *,
-    preset: str = "fast",
-    iterations: int | None = None,
-    batch_size: int | None = None,
-    grid_cells: int | None = None,
-    width: int | None = None,
-    depth: int | None = None,
-    resolution: int | None = None,
-    learning_rate: float | None = None,
-    eikonal_weight: float = 0.1,
-    normal_weight: float = 1.0,
-    normals_k: int = 16,
-    max_faces: int | None = None,
-    sharpen: bool = True,
-    seed: int | np.random.Generator = 0,
     threads: int | None = None,
     device: str = "auto",
-    progress: Callable[[float, str], None] | None = None,
-    should_cancel: Callable[[], bool] | None = None,
+    progress: Progress | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> Reconstruction:
     """Reconstruct a closed surface from a point cloud.
 
@@ -78,43 +69,40 @@ def reconstruct_surface(
         (n, 3) finite coordinates, any unit (mm in the pipeline); n >= 100 distinct.
     normals
         (n, 3) outward normals (any non-zero length) or None to estimate them.
-    preset
-        ``"fast"`` (grid pyramid started from the oriented-plane distance; the
-        default, about a minute for 50k points on 2 CPU cores), ``"mlp"`` (the
-        paper's network at 4x256, sphere start) or ``"paper"`` (8x512, the
-        paper's sampling and schedule; meant for a GPU). See :mod:`cam.reconstruct.presets`.
-    iterations, batch_size, grid_cells, width, depth, resolution, learning_rate
-        Override the preset when given: Adam steps, cloud points per step,
-        finest grid cells along the longest side (fast), MLP width and depth
-        (mlp, paper), marching-cubes cells along the longest side, initial
-        learning rate (mlp: Adam's step; fast: the step as a fraction of each
-        grid level's cell), decaying to 1/100 of it.
-    eikonal_weight, normal_weight
-        lambda and tau of the IGR loss (paper: 0.1 and 1).
-    normals_k
-        Neighbours for normal estimation.
-    max_faces
-        Cap on the mesh's triangles: when marching cubes at ``resolution`` gives
-        more, the surface is extracted again on a coarser lattice sized to fit
-        (a closed mesh either way; the later stages' cost grows with the faces).
-        None: no cap.
-    sharpen
-        Restore the sharp edges that marching cubes bevels over about one cell
-        (:func:`~cam.reconstruct.sharpen.sharpen_creases`): bevel vertices move
-        onto the two face planes and the edges between them are split at the
-        crease. The field is what IGR trained either way; this only changes
-        how its zero set is meshed. False: plain marching cubes.
-    seed
-        Seed (or a Generator that draws one); the same seed gives the same mesh on CPU.
+    params
+        ``preset``: ``"fast"`` (grid pyramid started from the oriented-plane
+        distance; the default, about a minute for 50k points on 2 CPU cores),
+        ``"mlp"`` (the paper's network at 4x256, sphere start) or ``"paper"``
+        (8x512, the paper's sampling and schedule; meant for a GPU); see
+        :mod:`cam.reconstruct.presets`.
+        ``iterations``, ``batch_size``, ``grid_cells``, ``width``, ``depth``,
+        ``resolution``, ``learning_rate`` override the preset when not None:
+        Adam steps, cloud points per step, finest grid cells along the longest
+        side (fast), MLP width and depth (mlp, paper), marching-cubes cells
+        along the longest side, initial learning rate (mlp: Adam's step; fast:
+        the step as a fraction of each grid level's cell), decaying to 1/100 of it.
+        ``eikonal_weight``, ``normal_weight``: lambda and tau of the IGR loss
+        (paper: 0.1 and 1).
+        ``normals_k``: neighbours for normal estimation.
+        ``max_faces``: cap on the mesh's triangles: when marching cubes at
+        ``resolution`` gives more, the surface is extracted again on a coarser
+        lattice sized to fit (a closed mesh either way; the later stages' cost
+        grows with the faces). None: no cap.
+        ``sharpen``: restore the sharp edges that marching cubes bevels over
+        about one cell (:func:`~cam.reconstruct.sharpen.sharpen_creases`):
+        bevel vertices move onto the two face planes and the edges between
+        them are split at the crease. The field is what IGR trained either way;
+        this only changes how its zero set is meshed. False: plain marching cubes.
+        ``seed``: the same seed gives the same mesh on CPU.
     threads
         Torch and k-NN threads; None keeps torch's setting.
     device
         ``"auto"`` (CUDA when available), ``"cpu"`` or ``"cuda"``.
     progress
         ``progress(fraction, message)``, called at least once per iteration.
-    should_cancel
-        Polled every iteration and between phases; True stops with
-        :class:`ReconstructionCanceled`.
+    check_cancel
+        Called every iteration and between phases; it stops the work by raising
+        (the exception passes through untouched).
 
     Returns
     -------
@@ -126,20 +114,25 @@ def reconstruct_surface(
 
     Raises
     ------
-    ValueError
+    GeometryError
         With a message naming the problem: too few or only duplicate points,
-        a collinear or flat cloud, non-finite values, zero-length normals,
-        normals that cannot be oriented, or a diverging training run.
+        a collinear or flat cloud, zero-length or non-finite normals or normals
+        that cannot be oriented (:class:`~cam.reconstruct.normals.NormalsError`),
+        a diverging training run (:class:`~cam.reconstruct.train.DivergedError`),
+        or a field in which no surface was found.
+    ValueError
+        For arrays of the wrong shape, non-finite coordinates, or options out of range.
     """
     started = time.perf_counter()
     timings: dict[str, float] = {}
+    check_cancel = check_cancel or _no_cancel
+    preset = params.preset
+    eikonal_weight, normal_weight = params.eikonal_weight, params.normal_weight
+    normals_k, max_faces, sharpen, seed = params.normals_k, params.max_faces, params.sharpen, params.seed
 
-    def poll() -> None:
-        if should_cancel is not None and should_cancel():
-            raise ReconstructionCanceled("reconstruction canceled")
-
-    opts = resolve_options(preset, iterations=iterations, batch_size=batch_size, grid_cells=grid_cells,
-                           width=width, depth=depth, resolution=resolution, learning_rate=learning_rate)
+    opts = resolve_options(preset, iterations=params.iterations, batch_size=params.batch_size,
+                           grid_cells=params.grid_cells, width=params.width, depth=params.depth,
+                           resolution=params.resolution, learning_rate=params.learning_rate)
     if not (np.isfinite(eikonal_weight) and eikonal_weight >= 0 and np.isfinite(normal_weight)
             and normal_weight >= 0):
         raise ValueError(f"eikonal_weight and normal_weight must be finite and >= 0, got {eikonal_weight} "
@@ -153,8 +146,6 @@ def reconstruct_surface(
     pts = _check_points(points)
     given = normals is not None
     nrm = check_normals(normals, len(pts)) if given else None
-    if isinstance(seed, np.random.Generator):
-        seed = int(seed.integers(0, 2**31 - 1))
     workers = threads or 1
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        ("cpu" if device == "auto" else device))
@@ -172,10 +163,10 @@ def reconstruct_surface(
     sigma = dist[:, 1]
     normals_report: dict[str, Any] = {"source": "given" if given else "estimated"}
     if nrm is None:
-        nrm, est = estimate_normals(unit, k=normals_k, workers=workers, should_cancel=poll)
+        nrm, est = estimate_normals(unit, k=normals_k, workers=workers, check_cancel=check_cancel)
         normals_report.update(est)
     timings["normals"] = time.perf_counter() - t
-    poll()
+    check_cancel()
 
     lo = unit.min(axis=0)
     hi = unit.max(axis=0)
@@ -187,7 +178,7 @@ def reconstruct_surface(
         torch.set_num_threads(threads)
     try:
         t = time.perf_counter()
-        field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, poll)
+        field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel)
         timings["init"] = time.perf_counter() - t
         gen = torch.Generator(device=dev).manual_seed(seed)
         as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=dev)  # noqa: E731
@@ -197,8 +188,8 @@ def reconstruct_surface(
         t = time.perf_counter()
         training = train_igr(field, as_t(unit), as_t(nrm), as_t(sigma), (as_t(lo), as_t(hi)), settings,
                              generator=gen, param_groups=groups,
-                             progress=(lambda f, m: progress(0.05 + 0.85 * f, m)) if progress else None,
-                             poll=poll)
+                             progress=progress_between(progress, 0.05, 0.9) if progress else None,
+                             check_cancel=check_cancel)
         timings["train"] = time.perf_counter() - t
 
         def evaluate(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
@@ -217,12 +208,12 @@ def reconstruct_surface(
         resolution = opts["resolution"]
         for _ in range(4):
             verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=resolution, points=unit,
-                                                        poll=poll)
+                                                        check_cancel=check_cancel)
             mesh_report["resolution"] = resolution
             fits = max_faces is None or len(faces) <= max_faces or resolution == 16
             if fits and sharpen:
                 # Sharpening adds a few per cent of faces, so the cap is checked again after it.
-                verts, faces, mesh_report = _sharpen(verts, faces, mesh_report, field_cell, workers, poll)
+                verts, faces, mesh_report = _sharpen(verts, faces, mesh_report, field_cell, workers, check_cancel)
                 fits = max_faces is None or len(faces) <= max_faces or resolution == 16
             if fits:
                 break
@@ -255,30 +246,35 @@ def reconstruct_surface(
     return Reconstruction(vertices=verts, faces=faces, report=report)
 
 
-def _sharpen(verts, faces, report, field_cell, workers, poll):
+def _no_cancel() -> None:
+    pass
+
+
+def _sharpen(verts, faces, report, field_cell, workers, check_cancel):
     """The creases restored on a marching-cubes mesh (normalised frame); the report gains ``sharpened``."""
-    poll()
+    check_cancel()
     # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
     size = max(field_cell, 2.0 * report["cell"])
-    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers, poll=poll)
+    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers,
+                                              check_cancel=check_cancel)
     report["sharpened"] = sharpened
     report["watertight"] = is_watertight(faces)
     return verts, faces, report
 
 
-def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, poll):
+def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel):
     """The field and its Adam parameter groups (per-level learning-rate factors for the grid)."""
     if opts["field"] == "grid":
         field = GridField(lo, hi, finest_cells=opts["grid_cells"], levels=opts["levels"]).to(dev)
         # The coarsest level takes the prior everywhere (few vertices, so unbounded queries are
         # cheap); the finest level adds the detail in a band around the cloud, where training acts.
         coarse = plane_distance(field.vertices(0), unit, nrm, spacing=spacing, k=opts["prior_k"],
-                                workers=workers, tree=tree, should_cancel=poll)
+                                workers=workers, tree=tree, check_cancel=check_cancel)
         field.set_level(0, torch.as_tensor(coarse))
         fine_v = field.vertices(-1)
         band = 4.0 * field.cell[-1]
         fine = plane_distance(fine_v, unit, nrm, spacing=spacing, k=opts["prior_k"], workers=workers,
-                              tree=tree, max_distance=band, should_cancel=poll)
+                              tree=tree, max_distance=band, check_cancel=check_cancel)
         with torch.no_grad():
             base = field.lattice([np.unique(fine_v[:, a]) for a in range(3)]).reshape(-1).double().cpu().numpy()
         residual = np.where(np.isfinite(fine), fine - base, 0.0)
@@ -304,17 +300,18 @@ def _check_points(points: np.ndarray) -> np.ndarray:
         bad = int((~np.isfinite(pts).all(axis=1)).sum())
         raise ValueError(f"{bad} of {len(pts)} points have non-finite coordinates (NaN/Inf); drop them first")
     if len(pts) < MIN_POINTS:
-        raise ValueError(f"the cloud has {len(pts)} points; at least {MIN_POINTS} are needed to rebuild a surface")
+        raise GeometryError(f"the cloud has {len(pts)} points; at least {MIN_POINTS} are needed to rebuild a "
+                            "surface")
     distinct = len(np.unique(pts, axis=0))
     if distinct < MIN_POINTS:
-        raise ValueError(f"the cloud has only {distinct} distinct points among {len(pts)} (the rest are "
-                         f"duplicates); at least {MIN_POINTS} distinct points are needed")
+        raise GeometryError(f"the cloud has only {distinct} distinct points among {len(pts)} (the rest are "
+                            f"duplicates); at least {MIN_POINTS} distinct points are needed")
     centred = pts - pts.mean(axis=0)
     spread = np.linalg.svd(centred[:: max(1, len(pts) // 200_000)], compute_uv=False)
     if spread[1] <= 1e-6 * spread[0]:
-        raise ValueError("the points are collinear (they lie on one line); a surface needs a scan of the "
-                         "part's faces, not a single line")
+        raise GeometryError("the points are collinear (they lie on one line); a surface needs a scan of the "
+                            "part's faces, not a single line")
     if spread[2] <= 1e-3 * spread[0]:
-        raise ValueError("the points are coplanar (they lie in one plane, thinner than 0.1 % of their size); "
-                         "a flat sheet of points encloses no volume, scan the part from all sides")
+        raise GeometryError("the points are coplanar (they lie in one plane, thinner than 0.1 % of their "
+                            "size); a flat sheet of points encloses no volume, scan the part from all sides")
     return pts

@@ -13,15 +13,16 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 
-__all__ = ["TrainSettings", "train_igr"]
+from cam import CheckCancel, GeometryError, Progress
+
+__all__ = ["DivergedError", "TrainSettings", "train_igr"]
 
 
-class DivergedError(ValueError):
-    """The loss became NaN or infinite."""
+class DivergedError(GeometryError):
+    """The loss became NaN or infinite; the message says which setting to lower."""
 
 
 @dataclass(frozen=True)
@@ -55,15 +56,15 @@ def train_igr(
     *,
     generator: torch.Generator,
     param_groups: list[dict] | None = None,
-    progress: Callable[[float, str], None] | None = None,
-    poll: Callable[[], None] | None = None,
+    progress: Progress | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> dict:
     """Minimise the IGR loss over ``field``'s parameters; returns a JSON-ready report.
 
     points (n, 3), normals (n, 3) or None, sigma (n,) live on the field's device
     in the normalised frame; ``box`` is (lo, hi) for the uniform samples.
     ``param_groups`` may give per-group learning-rate factors (key ``lr_scale``).
-    ``poll`` is called every iteration and stops training by raising.
+    ``check_cancel`` is called every iteration and stops training by raising.
     """
     device, dtype = points.device, points.dtype
     groups = param_groups or [{"params": list(field.parameters()), "lr_scale": 1.0}]
@@ -77,8 +78,8 @@ def train_igr(
     started = time.perf_counter()
     terms = {}
     for it in range(settings.iterations):
-        if poll is not None:
-            poll()
+        if check_cancel is not None:
+            check_cancel()
         lr = _lr_at(it, settings)
         for group, scale in zip(opt.param_groups, scales, strict=True):
             group["lr"] = lr * scale

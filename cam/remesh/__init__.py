@@ -7,10 +7,12 @@ input's creases the quad edges follow.
 
 from cam.remesh.quadriflow import (
     QuadriflowFailed,
+    RemeshFailed,
     RemeshResult,
     boundary_loop_count,
     remesh_quads,
     run_quadriflow,
 )
 
-__all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]
+__all__ = ["QuadriflowFailed", "RemeshFailed", "RemeshResult", "boundary_loop_count", "remesh_quads",
+           "run_quadriflow"]

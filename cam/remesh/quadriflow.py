@@ -2,10 +2,11 @@
 
 QuadriFlow (through ``pyQuadriFlow``) runs in a child process with a timeout,
 because on rare inputs it loops forever; a timeout, a crash or a result that
-fails the checks is retried with the next seed. How many of the input's creases
-QuadriFlow's edges follow depends on its seed, so several results that pass are
-compared and the one that follows most of them is kept
-(:mod:`cam.remesh.creases`). A result is
+fails the checks is retried with the next seed, and when no attempt gives a
+usable quad mesh, :class:`RemeshFailed` (a :class:`cam.GeometryError`) says why
+each failed. How many of the input's creases QuadriFlow's edges follow depends
+on its seed, so several results that pass are compared and the one that follows
+most of them is kept (:mod:`cam.remesh.creases`). A result is
 repaired where that is small and safe (:mod:`cam.remesh.check`), oriented like
 the input, and its vertices are projected onto the input triangles: QuadriFlow
 works in single precision, and the projection restores double precision (and
@@ -21,7 +22,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,20 +29,33 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from cam import CheckCancel, GeometryError, Progress
 from cam.mesh.closest import MeshIndex, closest_points, mesh_index
 from cam.mesh.quads import face_areas, face_normals
+from cam.params import RemeshParams
 from cam.remesh.check import inspect_quad_mesh, repair_quad_mesh
 from cam.remesh.creases import measure_crease_following
 
-__all__ = ["QuadriflowFailed", "RemeshResult", "boundary_loop_count", "remesh_quads", "run_quadriflow"]
+__all__ = ["QuadriflowFailed", "RemeshFailed", "RemeshResult", "boundary_loop_count", "remesh_quads",
+           "run_quadriflow"]
 
-_POLL_S = 0.25
+# How often, s, the wait on the child wakes to check the deadline and cancellation.
+_CHECK_EVERY_S = 0.25
 # Face-count nudges of attempt i, once a run has failed (QuadriFlow's holes and hangs depend on the exact sampling).
 _TARGET_NUDGE = (0.0, -0.04, 0.04, -0.08, 0.08)
 
 
 class QuadriflowFailed(RuntimeError):
-    """One QuadriFlow run gave no result (timeout, crash, error); the message says which."""
+    """One QuadriFlow run gave no result (timeout, crash, error); the message says which.
+
+    :func:`remesh_quads` catches it and tries the next seed; it reaches the user only as part of a
+    :class:`RemeshFailed`.
+    """
+
+
+class RemeshFailed(GeometryError):
+    """No attempt gave a usable quad mesh; the message lists each attempt's seed, face count and reason,
+    and names the parameters to change."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,7 +103,7 @@ def run_quadriflow(
     preserve_boundary: bool = False,
     min_cost_flow: bool = False,
     timeout_s: float = 600.0,
-    poll: Callable[[], None] | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run QuadriFlow once in a child process.
 
@@ -106,9 +119,9 @@ def run_quadriflow(
         QuadriFlow's ``-sharp``, ``-boundary`` and ``-mcf`` switches.
     timeout_s
         Wall-clock limit; the child is killed after it.
-    poll
+    check_cancel
         Called about four times a second while the child runs; whatever it
-        raises (e.g. a cancellation) kills the child and propagates.
+        raises (the caller's cancellation) kills the child and propagates.
 
     Returns
     -------
@@ -141,13 +154,14 @@ def run_quadriflow(
     deadline = time.monotonic() + timeout_s
     try:
         while talker.is_alive():
-            talker.join(max(0.0, min(_POLL_S, deadline - time.monotonic())))  # a limit below the poll holds too
+            # A time limit shorter than the check interval holds too.
+            talker.join(max(0.0, min(_CHECK_EVERY_S, deadline - time.monotonic())))
             if not talker.is_alive():
                 break
             if time.monotonic() > deadline:
                 raise QuadriflowFailed(f"timed out after {timeout_s:.0f} s")
-            if poll is not None:
-                poll()
+            if check_cancel is not None:
+                check_cancel()
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -221,18 +235,11 @@ def _accept(raw_v: np.ndarray, raw_f: np.ndarray, in_verts: np.ndarray, in_tris:
 
 def remesh_quads(
     vertices: np.ndarray,
-    triangles: np.ndarray,
+    faces: np.ndarray,
+    params: RemeshParams = RemeshParams(),
     *,
-    target_faces: int,
-    seed: int = 0,
-    attempts: int = 3,
-    candidates: int = 3,
-    timeout_s: float = 600.0,
-    preserve_sharp: bool = True,
-    min_cost_flow: bool = False,
-    max_hausdorff_ratio: float = 0.05,
-    poll: Callable[[], None] | None = None,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> RemeshResult:
     """Remesh a triangle mesh into a checked, feature-aligned quad mesh.
 
@@ -240,47 +247,50 @@ def remesh_quads(
     ----------
     vertices
         float (n, 3), mm.
-    triangles
-        int (m, 3), counter-clockwise seen from outside.
-    target_faces
-        Quads to aim for, ≥ 1.
-    seed
-        Seed of the first attempt; attempt ``i`` uses ``seed + i``. Once a run
-        has failed, later ones also take a face count a few percent off the
-        target (QuadriFlow's rare hangs and holes depend on the exact sampling);
-        until then every run is at the target, so the layouts compared are of
-        one density.
-    attempts
-        Most QuadriFlow runs, ≥ 1. When none passed and some failed on
-        triangular holes that cannot be paired, one more run at a quarter of the
-        faces fills them and splits every face into four quads
-        (:func:`cam.remesh.check.split_into_quads`); the report says ``"split": true``.
-    candidates
-        Runs that pass the checks to compare, ≥ 1: attempts stop once this many
-        passed, and of those the one whose edges follow the most crease length
-        of the input is kept (the nearer one, by Hausdorff distance, on a tie).
-        The report lists them under ``"candidates"`` (seed, QuadriFlow's target, faces,
-        missed crease length, Hausdorff distance).
-    timeout_s
-        Limit of one run, seconds.
-    preserve_sharp
-        Align quads with sharp features (QuadriFlow's ``-sharp``).
-    min_cost_flow
-        QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).
-    max_hausdorff_ratio
-        Largest accepted two-sided Hausdorff distance as a fraction of the
-        input's bounding-box diagonal.
-    poll, progress
-        Called while QuadriFlow runs (see :func:`run_quadriflow`) and between steps.
+    faces
+        int (m, 3) triangles, counter-clockwise seen from outside.
+    params
+        The remesh group:
+
+        - ``target_faces``: quads to aim for.
+        - ``seed``: seed of the first attempt; attempt ``i`` uses ``seed + i``. Once a run
+          has failed, later ones also take a face count a few percent off the
+          target (QuadriFlow's rare hangs and holes depend on the exact sampling);
+          until then every run is at the target, so the layouts compared are of
+          one density.
+        - ``attempts``: most QuadriFlow runs. When none passed and some failed on
+          triangular holes that cannot be paired, one more run at a quarter of the
+          faces fills them and splits every face into four quads
+          (:func:`cam.remesh.check.split_into_quads`); the report says ``"split": true``.
+        - ``candidates``: runs that pass the checks to compare: attempts stop once this many
+          passed, and of those the one whose edges follow the most crease length
+          of the input is kept (the nearer one, by Hausdorff distance, on a tie).
+          The report lists them under ``"candidates"`` (seed, QuadriFlow's target, faces,
+          missed crease length, Hausdorff distance).
+        - ``timeout_s``: limit of one run, seconds.
+        - ``preserve_sharp``: align quads with sharp features (QuadriFlow's ``-sharp``).
+        - ``min_cost_flow``: QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).
+        - ``max_hausdorff_ratio``: largest accepted two-sided Hausdorff distance as a
+          fraction of the input's bounding-box diagonal.
+    progress
+        ``progress(fraction, message)`` before each run and before its checks.
+    check_cancel
+        Called about four times a second while QuadriFlow runs (see :func:`run_quadriflow`);
+        what it raises kills the child and propagates.
 
     Raises
     ------
     ValueError
-        For bad inputs (naming what was seen), or when every attempt failed:
-        the message lists each attempt's seed and reason.
+        For malformed arrays or parameters out of range, naming what was seen.
+    GeometryError
+        When the mesh has zero extent.
+    RemeshFailed
+        When every attempt failed: the message lists each attempt's seed and reason.
     """
+    target_faces, seed, attempts, candidates = params.target_faces, params.seed, params.attempts, params.candidates
+    timeout_s = params.timeout_s
     verts = np.asarray(vertices, dtype=np.float64)
-    tris = np.asarray(triangles)
+    tris = np.asarray(faces)
     if verts.ndim != 2 or verts.shape[1] != 3 or not np.isfinite(verts).all():
         raise ValueError(f"vertices must be a finite (n, 3) array, got shape {verts.shape}")
     if tris.ndim != 2 or tris.shape[1] != 3 or len(tris) == 0 or tris.dtype.kind not in "iu":
@@ -288,12 +298,13 @@ def remesh_quads(
     tris = tris.astype(np.int64)
     if tris.min() < 0 or tris.max() >= len(verts):
         raise ValueError(f"triangles index vertices {tris.min()}..{tris.max()} but there are {len(verts)}")
+    # The group validates these; a group made without validation (model_construct) must not loop or divide by zero.
     if target_faces < 1 or attempts < 1 or candidates < 1 or timeout_s <= 0:
         raise ValueError(f"need target_faces ≥ 1, attempts ≥ 1, candidates ≥ 1, timeout_s > 0; got {target_faces}, "
                          f"{attempts}, {candidates}, {timeout_s}")
     diag = float(np.linalg.norm(np.ptp(verts[np.unique(tris)], axis=0)))
     if diag <= 0:
-        raise ValueError("the mesh has zero extent")
+        raise GeometryError("the mesh has zero extent")
     loops = boundary_loop_count(tris, len(verts))
     failures: list[str] = []
     accepted: list[RemeshResult] = []
@@ -315,12 +326,13 @@ def remesh_quads(
         started = time.monotonic()
         try:
             raw_v, raw_f = run_quadriflow(verts, tris, target_faces=run_target, seed=run_seed,
-                                          preserve_sharp=preserve_sharp, preserve_boundary=loops > 0,
-                                          min_cost_flow=min_cost_flow, timeout_s=timeout_s, poll=poll)
+                                          preserve_sharp=params.preserve_sharp, preserve_boundary=loops > 0,
+                                          min_cost_flow=params.min_cost_flow, timeout_s=timeout_s,
+                                          check_cancel=check_cancel)
             quadriflow_s = time.monotonic() - started
             if progress is not None:
                 progress((attempt + 0.8) / (attempts + 1), "checking the quads")
-            out_v, out_f, facts = _accept(raw_v, raw_f, verts, tris, loops, diag, max_hausdorff_ratio,
+            out_v, out_f, facts = _accept(raw_v, raw_f, verts, tris, loops, diag, params.max_hausdorff_ratio,
                                           split_unpaired=split)
         except (QuadriflowFailed, ValueError) as exc:
             failures.append(f"seed {run_seed}, {run_target} faces: {exc}")
@@ -344,5 +356,5 @@ def remesh_quads(
         keys = ("seed", "quadriflow_target_faces", "faces", "missed_crease_mm", "hausdorff_mm")
         best.report["candidates"] = [{key: r.report[key] for key in keys} for r in accepted]
         return best
-    raise ValueError(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): " + "; ".join(failures)
-                     + ". Try another remesh.target_faces or remesh.seed")
+    raise RemeshFailed(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): " + "; ".join(failures)
+                       + ". Try another remesh.target_faces or remesh.seed")

@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import heapq
 import itertools
-from collections.abc import Callable
 
 import numpy as np
 
+from cam import CheckCancel
 from cam.mesh.quads import QuadTopology, prev_he, vertex_fans
 from cam.segment.traces import Trace, trace_line
 
@@ -111,12 +111,14 @@ class CutState:
         return []
 
 
-def complete_cuts(state: CutState, vertices_to_check: np.ndarray | list[int] | None = None,
-                  check_cancel: Callable[[], None] | None = None) -> int:
+def complete_cuts(state: CutState, *, vertices_to_check: np.ndarray | list[int] | None = None,
+                  check_cancel: CheckCancel | None = None) -> int:
     """Add clipping lines until no vertex has a bad sector; returns how many lines were added.
 
     Lines are added shortest first (a heap of proposals, each re-checked
     when it comes up, since earlier lines shorten or remove later ones).
+    ``vertices_to_check``: int (k,) vertices to start from (default: those on a clipping edge and the
+    irregular ones). ``check_cancel`` is called every 64 lines; what it raises propagates.
     """
     topo = state.topo
     if vertices_to_check is None:
@@ -182,8 +184,11 @@ def corner_counts(topo: QuadTopology, cut: np.ndarray, labels: np.ndarray) -> np
     return np.bincount(labels, weights=corners.sum(axis=1), minlength=labels.max() + 1).astype(np.int64)
 
 
-def cut_open_cylinders(state: CutState, check_cancel: Callable[[], None] | None = None) -> int:
-    """Cut every patch without corners (annulus, torus) with its shortest grid line; returns lines added."""
+def cut_open_cylinders(state: CutState, *, check_cancel: CheckCancel | None = None) -> int:
+    """Cut every patch without corners (annulus, torus) with its shortest grid line; returns lines added.
+
+    ``check_cancel`` is called after each line; what it raises propagates.
+    """
     topo = state.topo
     labels = patch_labels(topo, state.cut)
     corners = corner_counts(topo, state.cut, labels)

@@ -14,18 +14,24 @@
 
 ``method="motorcycle"`` replaces 3–4 by the motorcycle graph (the baseline);
 ``method="greedy"`` skips the MST (an ablation: completion only).
+
+A quad mesh that cannot be segmented (quads that do not form a manifold,
+consistently oriented mesh; nothing left once the base is removed) raises a
+:class:`cam.GeometryError`. A patch that is no sharp height field is not
+raised: it is returned, marked invalid, so that the caller can still show it.
 """
 
 from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from cam import CheckCancel, GeometryError, Progress
 from cam.mesh.quads import face_areas, face_normals, quad_topology
+from cam.params import SegmentParams
 from cam.segment.base import SetupBase, find_setup_base
 from cam.segment.clip import CutState, complete_cuts, cut_open_cylinders, patch_labels
 from cam.segment.graph import build_connection_graph
@@ -105,20 +111,10 @@ def _edge_keys(edges: np.ndarray, n: int) -> np.ndarray:
 def segment_quads(
     vertices: np.ndarray,
     faces: np.ndarray,
+    params: SegmentParams = SegmentParams(),
     *,
-    sharp_angle_deg: float = 50.0,
-    remove_base: bool = True,
-    mu: float = 0.7,
-    gamma: float = 0.3,
-    sc: float = 0.1,
-    nc: float = 0.1,
-    ac: float = 1000.0,
-    base_clusters: int = 6,
-    min_fragment_edges: int = 3,
-    method: str = "mst",
-    seed: int = 0,
-    progress: Callable[[float, str], None] | None = None,
-    check_cancel: Callable[[], None] | None = None,
+    progress: Progress | None = None,
+    check_cancel: CheckCancel | None = None,
 ) -> Segmentation:
     """Segment a quad mesh into rectangular patches with every sharp edge on a patch boundary.
 
@@ -129,24 +125,21 @@ def segment_quads(
     faces
         int (m, 4), a manifold, consistently oriented quad mesh (as the
         remesh stage writes it).
-    sharp_angle_deg
-        θ: dihedral angle above which an edge is sharp, in (0, 180).
-    remove_base
-        Remove the base faces from the domain.
-    mu, gamma
-        Weights of S and Γ in the base objective (≥ 0).
-    sc, nc, ac
-        Graph weights SC (sharp edges), NC (NF edges), AC (auxiliary edges), > 0.
-    base_clusters
-        k of the normal k-means, ≥ 1.
-    min_fragment_edges
-        Isolated sharp fragments with fewer edges are ignored.
-    method
-        ``"mst"`` (the paper), ``"greedy"`` (no MST) or ``"motorcycle"`` (baseline).
-    seed
-        Seed of the k-means generator.
-    progress, check_cancel
-        Optional callbacks: progress(fraction, message); check_cancel() raises to stop.
+    params
+        The segment group:
+
+        - ``sharp_angle_deg``: θ, dihedral angle above which an edge is sharp, in (0, 180).
+        - ``remove_base``: remove the base faces from the domain.
+        - ``mu``, ``gamma``: weights of S and Γ in the base objective (≥ 0).
+        - ``sc``, ``nc``, ``ac``: graph weights SC (sharp edges), NC (NF edges), AC (auxiliary edges), > 0.
+        - ``base_clusters``: k of the normal k-means, ≥ 1.
+        - ``min_sharp_fragment_edges``: isolated sharp fragments with fewer edges are ignored.
+        - ``method``: ``"mst"`` (the paper), ``"greedy"`` (no MST) or ``"motorcycle"`` (baseline).
+        - ``seed``: seed of the k-means generator.
+    progress
+        ``progress(fraction, message)`` after each step.
+    check_cancel
+        Called after each step and from the long loops; what it raises propagates.
 
     Returns
     -------
@@ -156,8 +149,10 @@ def segment_quads(
     Raises
     ------
     ValueError
-        For malformed input (shape, range, non-manifold or inconsistently
-        oriented quads), an unknown method, or when removing the base leaves nothing.
+        For malformed arrays (shape, dtype, index range) or parameters out of range, naming what was seen.
+    GeometryError
+        When the quads are degenerate, non-manifold or inconsistently oriented, or when removing
+        the base leaves nothing.
     """
     timings: dict[str, float] = {}
     clock = time.perf_counter()
@@ -172,6 +167,7 @@ def segment_quads(
         if check_cancel is not None:
             check_cancel()
 
+    method = params.method
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     verts = np.asarray(vertices, dtype=np.float64)
@@ -181,20 +177,28 @@ def segment_quads(
     if quads.ndim != 2 or quads.shape[1] != 4 or len(quads) == 0:
         raise ValueError(f"faces must be a non-empty (m, 4) array of quads, got shape {quads.shape}")
     n = len(verts)
-    topo = quad_topology(quads, n)
+    # Shape, dtype and index range are the caller's; what quad_topology still rejects is the mesh itself.
+    if quads.dtype.kind not in "iu":
+        raise ValueError(f"faces must be an (m, 4) integer array, got shape {quads.shape} dtype {quads.dtype}")
+    if quads.min() < 0 or quads.max() >= n:
+        raise ValueError(f"faces index vertices {quads.min()}..{quads.max()} but there are {n}")
+    try:
+        topo = quad_topology(quads, n)
+    except ValueError as exc:
+        raise GeometryError(str(exc)) from exc
     quads = topo.faces
     normals = face_normals(verts, quads)
     areas = face_areas(verts, quads)
-    sharp_full = find_sharp_edges(topo, normals, sharp_angle_deg=sharp_angle_deg,
-                                  min_fragment_edges=min_fragment_edges)
+    sharp_full = find_sharp_edges(topo, normals, sharp_angle_deg=params.sharp_angle_deg,
+                                  min_fragment_edges=params.min_sharp_fragment_edges)
     lap("sharp edges", 0.1)
-    base = find_setup_base(verts, topo, normals, areas, sharp_full.sharp, clusters=base_clusters, mu=mu,
-                           gamma=gamma, rng=np.random.default_rng(seed))
+    base = find_setup_base(verts, topo, normals, areas, sharp_full.sharp, clusters=params.base_clusters,
+                           mu=params.mu, gamma=params.gamma, rng=np.random.default_rng(params.seed))
     keep = np.ones(len(quads), dtype=bool)
-    if remove_base:
+    if params.remove_base:
         keep[base.faces] = False
     if not keep.any():
-        raise ValueError("removing the base leaves no faces to machine; set segment.remove_base to false")
+        raise GeometryError("removing the base leaves no faces to machine; set segment.remove_base to false")
     lap("setup base", 0.2)
 
     domain = np.flatnonzero(keep)
@@ -213,7 +217,8 @@ def segment_quads(
     else:
         initial = sharp.copy()
         if method == "mst":
-            graph = build_connection_graph(dtopo, straight, verts, extraordinary, sharp, sc=sc, nc=nc, ac=ac)
+            graph = build_connection_graph(dtopo, straight, verts, extraordinary, sharp, sc=params.sc, nc=params.nc,
+                                           ac=params.ac)
             for i in graph.mst:
                 initial[dtopo.edge_of[list(graph.edges[i].half_edges)]] = True
             kinds = [graph.edges[i].kind for i in graph.mst]

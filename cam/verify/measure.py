@@ -19,6 +19,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
+from cam import CheckCancel
 from cam.gcode.parser import ParsedProgram
 from cam.spline.geometry import Patch
 from cam.spline.surface import flipped_normals
@@ -181,13 +182,102 @@ def pass_width_mm(tool_radius_mm: float, target_mm: float) -> float:
     return float(2.0 * np.sqrt(target_mm * (2.0 * tool_radius_mm - target_mm)))
 
 
+@dataclass
+class _PatchSamples:
+    """What one machined patch's samples show: their points, scallop left (NaN where not reached), the
+    heat-map value (NaN unreachable, +inf never reached), area weights, reachability, folds, its
+    triangles, the refined maximum and its entry of the report."""
+
+    points: np.ndarray
+    scallop: np.ndarray
+    heat: np.ndarray
+    weight: np.ndarray
+    reachable: np.ndarray
+    folded: np.ndarray
+    faces: np.ndarray
+    h_max: float
+    at: np.ndarray
+    gouge_cut: float
+    gouge_air: float
+    entry: dict
+
+
+def _grid_faces(nu: int, nv: int) -> np.ndarray:
+    """Two triangles per cell of an nu x nv sample grid: int (2 (nu-1)(nv-1), 3)."""
+    ii, jj = np.meshgrid(np.arange(nu - 1), np.arange(nv - 1), indexing="ij")
+    q = (ii * nv + jj).ravel()
+    return np.concatenate([np.stack([q, q + nv, q + nv + 1], -1), np.stack([q, q + nv + 1, q + 1], -1)])
+
+
+def _measure_patch(patch: Patch, cut: Sweep, air: Sweep, solid: _Part, *, spacing: float, max_side: int,
+                   reach: float, refine: bool) -> _PatchSamples:
+    gu, gv = _grid(patch, spacing, max_side)
+    uu, vv = np.meshgrid(gu, gv, indexing="ij")
+    p, n, area = _eval(patch, uu.ravel(), vv.ravel())
+    weight = area * (gu[-1] - gu[0]) * (gv[-1] - gv[0]) / (len(gu) * len(gv))
+    # Where the surface folds over itself its normal flips: neither material left nor overcut can
+    # be measured along it. Such samples are counted apart and as not reachable.
+    folded = flipped_normals(n.reshape(len(gu), len(gv), 3)).ravel()
+    ok = solid.reachable(p, n) & ~folded
+    h, g_cut = cut.probe(p, n, reach)
+    _, g_air = air.probe(p, n, reach)
+    g_cut, g_air = np.where(folded, 0.0, g_cut), np.where(folded, 0.0, g_air)
+    finite = ok & np.isfinite(h)
+    h_max, at = _refine(patch, cut, solid, h, ok, gu, gv, reach) if refine else (
+        float(np.max(np.where(finite, h, -1.0), initial=-1.0)), np.zeros(2))
+    entry = {
+        "patch": patch.id, "samples": len(p), "max_scallop_mm": h_max if np.any(finite) else None,
+        "p99_scallop_mm": float(np.percentile(h[finite], 99)) if np.any(finite) else None,
+        "fraction_reachable": float(weight[ok].sum() / weight.sum()),
+        "fraction_folded": float(weight[folded].sum() / weight.sum()),
+        "fraction_reached": float(weight[finite].sum() / max(weight[ok].sum(), 1e-300)),
+        "max_gouge_mm": float(g_cut.max(initial=0)), "max_rapid_gouge_mm": float(g_air.max(initial=0)),
+    }
+    return _PatchSamples(points=p, scallop=np.where(finite, h, np.nan), heat=np.where(ok, h, np.nan), weight=weight, reachable=ok, folded=folded,
+                         faces=_grid_faces(len(gu), len(gv)), h_max=h_max, at=at,
+                         gouge_cut=float(g_cut.max(initial=0)), gouge_air=float(g_air.max(initial=0)), entry=entry)
+
+
+def _report(done: list[_PatchSamples], machined: list[Patch], *, r: float, target_mm: float, spacing: float,
+            moves: dict) -> dict:
+    """The JSON-ready report over every machined patch's samples."""
+    h_all = np.concatenate([d.scallop for d in done]) if done else np.zeros(0)
+    w_all = np.concatenate([d.weight for d in done]) if done else np.zeros(0)
+    ok_all = np.concatenate([d.reachable for d in done]) if done else np.zeros(0, bool)
+    fin = np.isfinite(h_all)
+    w_ok = w_all[ok_all].sum()
+    best = (-1.0, None, None)
+    for d, patch in zip(done, machined):
+        if d.h_max > best[0] and np.any(np.isfinite(d.scallop)):
+            best = (d.h_max, patch.id, patch.surface.evaluate(d.at[:1], d.at[1:])[0])
+    return {
+        "tool_radius_mm": r, "target_scallop_mm": target_mm, "sample_spacing_mm": spacing,
+        "samples": len(h_all),
+        "max_scallop_mm": best[0] if best[1] is not None else None,
+        "max_at": {"patch": best[1], "xyz": [float(x) for x in best[2]]} if best[1] is not None else None,
+        "p99_scallop_mm": float(np.percentile(h_all[fin], 99)) if np.any(fin) else None,
+        "mean_scallop_mm": float(np.average(h_all[fin], weights=w_all[fin])) if np.any(fin) else None,
+        "fraction_over_target": float(w_all[fin & (np.nan_to_num(h_all) > target_mm * (1 + 1e-9))].sum()
+                                      / max(w_ok, 1e-300)),
+        "fraction_unreachable": float(w_all[~ok_all].sum() / max(w_all.sum(), 1e-300)),
+        "fraction_folded": float(w_all[np.concatenate([d.folded for d in done])].sum() / max(w_all.sum(), 1e-300))
+        if done else 0.0,
+        "fraction_never_reached": float(w_all[ok_all & ~fin].sum() / max(w_ok, 1e-300)),
+        "uncut_area_mm2": float(w_all[ok_all & ~fin].sum()),
+        "max_gouge_mm": max((d.gouge_cut for d in done), default=0.0),
+        "max_rapid_gouge_mm": max((d.gouge_air for d in done), default=0.0),
+        "moves": moves, "patches": [d.entry for d in done],
+    }
+
+
 def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Patch], *, tool_radius_mm: float,
                     target_mm: float, samples_per_interval: int = 12, refine: bool = True,
-                    reach_tol_mm: float = 1e-3, max_side: int = 1500, check_cancel=None) -> Measurement:
+                    reach_tol_mm: float = 1e-3, max_side: int = 1500,
+                    check_cancel: CheckCancel | None = None) -> Measurement:
     """Measure the program on the `machined` patches; `part` is every patch (for reachability).
 
     All patches in the machine frame of the program's setup, signs outward. The sample spacing is
-    `pass_width_mm` / samples_per_interval.
+    `pass_width_mm` / samples_per_interval. Returns the report and the samples as a heat-map mesh.
     """
     t0 = time.perf_counter()
     r = float(tool_radius_mm)
@@ -203,74 +293,19 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
     part_pts = np.concatenate([_eval(p, *[x.ravel() for x in np.meshgrid(*_grid(p, spacing, max_side), indexing="ij")])[0]
                                for p in part])
     solid = _Part(part_pts, cell=spacing, r=r, tol=reach_tol_mm)
-    verts, faces, values, owner, per_patch = [], [], [], [], []
-    all_h, all_w, all_reach, all_folded, gouge_cut, gouge_air = [], [], [], [], 0.0, 0.0
-    best = (-1.0, None, None)
+    done = []
     for patch in machined:
         check_cancel()
-        gu, gv = _grid(patch, spacing, max_side)
-        uu, vv = np.meshgrid(gu, gv, indexing="ij")
-        p, n, area = _eval(patch, uu.ravel(), vv.ravel())
-        weight = area * (gu[-1] - gu[0]) * (gv[-1] - gv[0]) / (len(gu) * len(gv))
-        # Where the surface folds over itself its normal flips: neither material left nor overcut can
-        # be measured along it. Such samples are counted apart and as not reachable.
-        folded = flipped_normals(n.reshape(len(gu), len(gv), 3)).ravel()
-        ok = solid.reachable(p, n) & ~folded
-        h, g_cut = cut.probe(p, n, reach)
-        _, g_air = air.probe(p, n, reach)
-        g_cut, g_air = np.where(folded, 0.0, g_cut), np.where(folded, 0.0, g_air)
-        gouge_cut, gouge_air = max(gouge_cut, float(g_cut.max(initial=0))), max(gouge_air, float(g_air.max(initial=0)))
-        hv = np.where(ok, h, np.nan)
-        finite = ok & np.isfinite(h)
-        h_max, at = _refine(patch, cut, solid, h, ok, gu, gv, reach) if refine else (
-            float(np.max(np.where(finite, h, -1.0), initial=-1.0)), np.zeros(2))
-        if h_max > best[0] and np.any(finite):
-            best = (h_max, patch.id, patch.surface.evaluate(at[:1], at[1:])[0])
-        reached = finite
-        per_patch.append({
-            "patch": patch.id, "samples": len(p), "max_scallop_mm": h_max if np.any(finite) else None,
-            "p99_scallop_mm": float(np.percentile(h[finite], 99)) if np.any(finite) else None,
-            "fraction_reachable": float(weight[ok].sum() / weight.sum()),
-            "fraction_folded": float(weight[folded].sum() / weight.sum()),
-            "fraction_reached": float(weight[reached].sum() / max(weight[ok].sum(), 1e-300)),
-            "max_gouge_mm": float(g_cut.max(initial=0)), "max_rapid_gouge_mm": float(g_air.max(initial=0)),
-        })
-        all_h.append(np.where(finite, h, np.nan))
-        all_w.append(weight)
-        all_reach.append(ok)
-        all_folded.append(folded)
-        nu, nv = len(gu), len(gv)
-        base = sum(len(x) for x in verts)
-        ii, jj = np.meshgrid(np.arange(nu - 1), np.arange(nv - 1), indexing="ij")
-        q = (ii * nv + jj).ravel() + base
-        faces.append(np.concatenate([np.stack([q, q + nv, q + nv + 1], -1), np.stack([q, q + nv + 1, q + 1], -1)]))
-        verts.append(p)
-        values.append(hv)
-        owner.append(np.full(len(p), patch.id))
-    h_all = np.concatenate(all_h) if all_h else np.zeros(0)
-    w_all = np.concatenate(all_w) if all_w else np.zeros(0)
-    ok_all = np.concatenate(all_reach) if all_reach else np.zeros(0, bool)
-    fin = np.isfinite(h_all)
-    w_ok = w_all[ok_all].sum()
-    report = {
-        "tool_radius_mm": r, "target_scallop_mm": target_mm, "sample_spacing_mm": spacing,
-        "samples": len(h_all),
-        "max_scallop_mm": best[0] if best[1] is not None else None,
-        "max_at": {"patch": best[1], "xyz": [float(x) for x in best[2]]} if best[1] is not None else None,
-        "p99_scallop_mm": float(np.percentile(h_all[fin], 99)) if np.any(fin) else None,
-        "mean_scallop_mm": float(np.average(h_all[fin], weights=w_all[fin])) if np.any(fin) else None,
-        "fraction_over_target": float(w_all[fin & (np.nan_to_num(h_all) > target_mm * (1 + 1e-9))].sum() / max(w_ok, 1e-300)),
-        "fraction_unreachable": float(w_all[~ok_all].sum() / max(w_all.sum(), 1e-300)),
-        "fraction_folded": float(w_all[np.concatenate(all_folded)].sum() / max(w_all.sum(), 1e-300))
-        if all_folded else 0.0,
-        "fraction_never_reached": float(w_all[ok_all & ~fin].sum() / max(w_ok, 1e-300)),
-        "uncut_area_mm2": float(w_all[ok_all & ~fin].sum()),
-        "max_gouge_mm": gouge_cut, "max_rapid_gouge_mm": gouge_air,
-        "moves": {"cutting": len(cut.a), "rapid": len(air.a)},
-        "patches": per_patch, "time_s": time.perf_counter() - t0,
-    }
+        done.append(_measure_patch(patch, cut, air, solid, spacing=spacing, max_side=max_side, reach=reach,
+                                   refine=refine))
+    report = _report(done, machined, r=r, target_mm=target_mm, spacing=spacing,
+                     moves={"cutting": len(cut.a), "rapid": len(air.a)})
+    report["time_s"] = time.perf_counter() - t0
+    offsets = np.cumsum([0] + [len(d.points) for d in done])
     return Measurement(report=report,
-                       vertices=np.concatenate(verts) if verts else np.zeros((0, 3)),
-                       faces=np.concatenate(faces).astype(np.int64) if faces else np.zeros((0, 3), np.int64),
-                       scallop=np.concatenate(values) if values else np.zeros(0),
-                       patch=np.concatenate(owner) if owner else np.zeros(0, np.int64))
+                       vertices=np.concatenate([d.points for d in done]) if done else np.zeros((0, 3)),
+                       faces=(np.concatenate([d.faces + o for d, o in zip(done, offsets)]).astype(np.int64)
+                              if done else np.zeros((0, 3), np.int64)),
+                       scallop=np.concatenate([d.heat for d in done]) if done else np.zeros(0),
+                       patch=np.concatenate([np.full(len(d.points), m.id) for d, m in zip(done, machined)])
+                       if done else np.zeros(0, np.int64))

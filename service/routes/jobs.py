@@ -12,23 +12,23 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Header, Query, Request, Response
-from starlette.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import and_, delete, or_, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from cam.io.formats import FORMAT_EXTENSIONS, describe_unsupported, sniff_format
 from core import jobs as jobstore
 from core.db import IdempotencyKey, Job, get_sessionmaker
-from service.deps import QueueDep, SessionDep, SettingsDep, StoreDep
 from core.params import JobParams, merge_params
+from core.queue import enqueue_stages, revoke
 from core.stages import load_stages
+from core.store import ArtifactStore
+from service.deps import QueueDep, SessionDep, SettingsDep, StoreDep
 from service.present import job_out
 from service.problems import Problem, validation_errors
-from core.queue import enqueue_stages, revoke
 from service.schemas import JobList, JobOut, JobStatus, ProblemOut, RerunIn
-from core.store import ArtifactStore
 from service.upload import Upload, receive_upload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])

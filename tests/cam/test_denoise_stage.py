@@ -10,6 +10,7 @@ import pydantic
 import pytest
 import trimesh
 
+from cam import GeometryError
 from cam.denoise.mesh_tgv import PARAMETER_BOUNDS
 from cam.io import read_ply, write_ply_mesh
 from core.params import DenoiseParams, JobParams
@@ -29,7 +30,7 @@ def _ctx(tmp_path: Path, src: Path, denoise: dict | None = None, **callbacks) ->
     out = tmp_path / "out"
     out.mkdir(exist_ok=True)
     return StageContext(job_id="j", stage="denoise", inputs={"mesh_raw.ply": src}, out_dir=out,
-                        params=JobParams.model_validate({"denoise": denoise or {}}).model_dump(), settings={},
+                        params=JobParams.model_validate({"denoise": denoise or {}}), settings={},
                         **callbacks)
 
 
@@ -64,6 +65,15 @@ def test_cancel_stops_the_stage(tmp_path):
 
     with pytest.raises(StageCanceled):
         run_denoise(_ctx(tmp_path, src, check_cancel=cancel))
+
+
+def test_a_degenerate_mesh_names_the_file(tmp_path):
+    """The core's GeometryError comes out as a StageError that says which file it is about."""
+    flat = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    src = write_ply_mesh(tmp_path / "mesh_raw.ply", flat, np.array([[0, 1, 2], [1, 2, 3]]))
+    with pytest.raises(StageError, match=r"^cannot denoise mesh_raw.ply: all 2 faces are degenerate") as info:
+        run_denoise(_ctx(tmp_path, src))
+    assert isinstance(info.value.__cause__, GeometryError)
 
 
 def test_a_point_cloud_is_a_clear_error(tmp_path):

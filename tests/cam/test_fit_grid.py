@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam.fit.boundary import boundary_layout, side_vertices
-from cam.fit.grid import orient_grid, patch_grid
+from cam import GeometryError
+from cam.fit.boundary import PatchLayoutError, boundary_layout, side_vertices
+from cam.fit.grid import PatchGridError, orient_grid, patch_grid
 from tests.cam.test_fit_shapes import quads_of
 
 
@@ -24,16 +25,28 @@ def test_patch_grid_walks_the_faces_from_a_corner_in_quad_order():
 
 
 def test_patch_grid_rejects_what_is_not_a_grid():
+    # A patch that is no grid is the layout's fault, which the user can change: a GeometryError.
     ids = np.arange(4 * 4).reshape(4, 4)
     quads = quads_of(ids)
-    with pytest.raises(ValueError, match="corner"):
+    with pytest.raises(PatchGridError, match="corner"):
         patch_grid(quads, np.arange(9), corner=int(ids[1, 1]))
-    with pytest.raises(ValueError, match="rectangular|corner"):
+    with pytest.raises(PatchGridError, match="rectangular|corner"):
         patch_grid(quads, [0, 1, 2, 3, 6], corner=0)  # an L shape
-    with pytest.raises(ValueError, match="says 2 x 2"):
+    with pytest.raises(PatchGridError, match="says 2 x 2"):
         patch_grid(quads, np.arange(9), corner=0, rows=2, cols=2)
-    with pytest.raises(ValueError, match="face ids"):
+    with pytest.raises(PatchGridError, match="face ids"):
         patch_grid(quads, [99])
+    with pytest.raises(PatchGridError, match="first cell"):
+        orient_grid(quads, ids[1:, :][::-1][[0, 2]])  # its first cell is no quad
+    with pytest.raises(PatchGridError, match="in no quad"):
+        orient_grid(quads, np.vstack([ids, [99, 99, 99, 99]]))
+    with pytest.raises(PatchGridError, match="shape"):
+        orient_grid(quads, ids[:1])
+    assert issubclass(PatchGridError, GeometryError)
+    # Quads of the wrong shape are a caller's bug, not the user's.
+    with pytest.raises(ValueError, match="shape") as err:
+        patch_grid(quads[:, :3], [0])
+    assert not isinstance(err.value, GeometryError)
 
 
 def test_layout_of_a_t_junction_takes_the_long_side_as_one_curve():
@@ -60,5 +73,6 @@ def test_layout_follows_reversed_neighbours_and_refuses_non_manifold_borders():
     (seg,) = layout.shared
     assert seg.reversed
     assert np.array_equal(side_vertices(a, seg.a[1]), side_vertices(b, seg.b[1])[::-1])
-    with pytest.raises(ValueError, match="at most two"):
+    with pytest.raises(PatchLayoutError, match="at most two"):
         boundary_layout([a, ids[2:5], ids[2:5][::-1]])
+    assert issubclass(PatchLayoutError, GeometryError)

@@ -9,7 +9,7 @@ import pytest
 
 from cam.io import write_ply_mesh
 from cam.spline.surface import surface_from_json
-from core.params import JobParams
+from core.params import JobParams, merge_params
 from tests.cam.test_fit_shapes import case, cylinder, quads_of, ridge
 from worker.context import StageContext, StageError
 from worker.stages.fit import run_fit
@@ -41,8 +41,13 @@ def _job(tmp_path, shape, *, blocks, extent=(30, 15), quads=(14, 7), fit=None, v
     out.mkdir()
     names = ("quads.obj", "patches.json", "mesh.ply")
     ctx = StageContext(job_id="j", stage="fit", inputs={n: tmp_path / n for n in names}, out_dir=out,
-                       params=JobParams.model_validate({"fit": fit or {}}).model_dump(), settings={})
+                       params=JobParams.model_validate({"fit": fit or {}}), settings={})
     return ctx, MV, MF
+
+
+def _changed(params: JobParams, **groups) -> JobParams:
+    """`params` with the fields in `groups` ({group: {name: value}}) changed, validated again."""
+    return JobParams.model_validate(merge_params(params.model_dump(), groups))
 
 
 def test_stage_writes_surfaces_json_and_iges(tmp_path):
@@ -89,7 +94,7 @@ def test_invalid_patches_are_skipped_and_reported(tmp_path):
 
 def test_the_default_tolerance_follows_the_scallop_height(tmp_path):
     ctx, *_ = _job(tmp_path, cylinder(25.0), blocks=[(0, 14)])
-    ctx.params["toolpath"]["scallop_height_mm"] = 0.05
+    ctx.params = _changed(ctx.params, toolpath={"scallop_height_mm": 0.05})
     doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
     assert doc["tolerance_mm"] == pytest.approx(0.01)
 
@@ -102,7 +107,7 @@ def test_failures_say_what_to_change(tmp_path):
     assert set(err.value.outputs) == {"surfaces.json", "surfaces.igs"}  # kept for inspection
     # The patch spans the roof's ridge: the message says the layout, not the fit, is at fault there.
     assert "1 of them ([10]) have it at a crease of the mesh" in str(err.value)
-    ctx.params["fit"]["require_tolerance"] = False
+    ctx.params = _changed(ctx.params, fit={"require_tolerance": False})
     notes = []
     ctx.progress = lambda f, m=None: notes.append(m)
     doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
@@ -132,6 +137,18 @@ def test_cancel_stops_the_fit_between_patches(tmp_path):
     with pytest.raises(StageCanceled):
         run_fit(ctx)
     assert not (ctx.out_dir / "surfaces.json").exists()
+    # The fit itself asks too (the stage asks once before it): a cancel there stops it as well.
+    calls = []
+
+    def cancel_in_the_fit():
+        calls.append(None)
+        if len(calls) > 1:
+            raise StageCanceled()
+
+    ctx.check_cancel = cancel_in_the_fit
+    with pytest.raises(StageCanceled):
+        run_fit(ctx)
+    assert len(calls) == 2 and not (ctx.out_dir / "surfaces.json").exists()
 
 
 def test_samples_across_a_sharp_border_belong_to_the_face_there(tmp_path):
@@ -142,3 +159,13 @@ def test_samples_across_a_sharp_border_belong_to_the_face_there(tmp_path):
     doc = json.loads(run_fit(ctx)["surfaces.json"].read_text())
     assert doc["over_tolerance"] == []
     assert doc["surfaces"][0]["max_error_mm"] < 0.01
+
+
+def test_an_unreadable_patches_file_is_named(tmp_path):
+    ctx, *_ = _job(tmp_path, cylinder(25.0), blocks=[(0, 14)])
+    (tmp_path / "patches.json").write_text("{not json")
+    with pytest.raises(StageError, match="patches.json is not a readable JSON document"):
+        run_fit(ctx)
+    (tmp_path / "patches.json").write_text(json.dumps({"patches": [{"id": 10}]}))
+    with pytest.raises(StageError, match="patches.json is not what segment writes"):
+        run_fit(ctx)

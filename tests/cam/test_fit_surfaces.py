@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from cam.fit.boundary import side_params
-from cam.fit.patches import fit_patches
+from cam.fit.patches import _fit_patches, fit_patches
 from cam.mesh.closest import closest_points, mesh_index
+from cam.params import FitParams
 from tests.cam.test_fit_shapes import (
     bump,
     case,
@@ -18,10 +19,15 @@ from tests.cam.test_fit_shapes import (
     triangle_mesh,
 )
 
+
+def fit_params(**changes) -> FitParams:
+    """The fit's parameters at the default tolerance (a fifth of the default scallop height), with `changes`."""
+    return FitParams(**{"tolerance_mm": 0.032, **changes})
+
+
 # Exact data only: the vertices of the mesh lie on the polynomial, its faces (the mesh terms, samples
-# inside faces) only near it.
-EXACT = dict(samples_per_face=0, mesh_weight=0.0, normal_weight_mm=0.0, tolerance_mm=1e-9, max_refinements=0,
-             iterations=20)
+# inside faces) only near it; with these parameters the fit is run with mesh_weight=0 (`_fit_patches`).
+EXACT = dict(samples_per_face=0, normal_weight_mm=0.0, tolerance_mm=1e-9, max_refinements=0, iterations=20)
 
 
 def _border_gap(result, grids, a, side_a, b, side_b, t_a, t_b):
@@ -43,7 +49,7 @@ def _facets(shape, extent, MV, MF, n: int = 801) -> float:
 
 def test_a_bicubic_polynomial_is_reproduced():
     V, ids, MV, MF = case(poly, (20, 10), (10, 5))
-    result = fit_patches(V, [ids], MV, MF, **EXACT)
+    result = _fit_patches(V, [ids], MV, MF, fit_params(**EXACT), mesh_weight=0.0)
     (p,) = result.patches
     # The samples (mesh vertices, on the polynomial) are met; what is left is the mesh's own faceting.
     facets = _facets(poly, (20, 10), MV, MF)
@@ -60,7 +66,7 @@ def test_a_bicubic_polynomial_is_reproduced():
 @pytest.mark.parametrize("shape, extent", [(cylinder(25.0), (30, 15)), (paraboloid(0.01), (30, 30))])
 def test_cylinder_section_and_paraboloid_are_within_tolerance(shape, extent):
     V, ids, MV, MF = case(shape, extent, (15, 8), refine=3)
-    result = fit_patches(V, [ids], MV, MF)
+    result = fit_patches(V, [ids], MV, MF, fit_params())
     (p,) = result.patches
     assert p.within_tolerance and p.max_error_mm < 0.01 and p.surface_to_mesh_mm < 0.01
     assert result.over_tolerance == [] and result.folded == [] and p.folded_fraction == 0.0
@@ -74,7 +80,7 @@ def test_cylinder_section_and_paraboloid_are_within_tolerance(shape, extent):
 def test_two_patches_meet_exactly_along_their_border():
     V, ids, MV, MF = case(cylinder(25.0), (30, 15), (14, 7), refine=3)
     grids = [ids[:8], ids[7:]]  # rows 0..7 and 7..14 share row 7
-    result = fit_patches(V, grids, MV, MF)
+    result = fit_patches(V, grids, MV, MF, fit_params())
     assert result.max_gap_mm <= 1e-9
     t = np.linspace(0, 7, 301)
     assert _border_gap(result, grids, 0, "u1", 1, "u0", t, t) <= 1e-9
@@ -85,7 +91,7 @@ def test_two_patches_meet_exactly_along_their_border():
 def test_a_t_junction_is_c0_on_both_pieces():
     V, ids, MV, MF = case(poly, (20, 10), (10, 5))
     grids = [ids[0:11, 0:4], ids[0:5, 3:6], ids[4:11, 3:6]]  # A below, B and C on A's top side
-    result = fit_patches(V, grids, MV, MF, **{**EXACT, "tolerance_mm": 1e-6})
+    result = _fit_patches(V, grids, MV, MF, fit_params(**{**EXACT, "tolerance_mm": 1e-6}), mesh_weight=0.0)
     assert result.max_gap_mm <= 1e-9
     ta = np.linspace(0, 4, 201)
     assert _border_gap(result, grids, 0, "v1", 1, "v0", ta, ta) <= 1e-9
@@ -113,7 +119,7 @@ def _bent(s, t):
 def test_a_side_that_turns_a_corner_gets_a_c0_knot_line_there():
     V, ids, MV, MF = case(_bent, (8, 6), (8, 6))
     grids = [ids[:, :4], ids[:, 3:]]  # they share the t = 3 line, which turns 45 degrees at s = 4
-    result = fit_patches(V, grids, MV, MF)
+    result = fit_patches(V, grids, MV, MF, fit_params())
     assert result.max_gap_mm <= 1e-9
     for p in result.patches:
         knots = p.surface.knots_u * 8  # grid-index units
@@ -134,7 +140,7 @@ def test_a_side_that_turns_a_corner_gets_a_c0_knot_line_there():
         normals = [p.surface.normals(np.full(10, u), v) for u in (np.nextafter(0.5, 0), 0.5)]
         assert np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", *normals), -1, 1))).max() < 0.2
     # Without the knot line the border rounds the corner, missing it by more than the tolerance.
-    smooth = fit_patches(V, grids, MV, MF, kink_angle_deg=180.0)
+    smooth = _fit_patches(V, grids, MV, MF, fit_params(), kink_angle_deg=180.0)
     border = smooth.patches[0].surface.evaluate(np.linspace(0, 1, 4001), np.ones(4001))
     assert np.linalg.norm(border - corner, axis=1).min() > smooth.tolerance_mm
 
@@ -152,20 +158,20 @@ def test_a_turn_of_35_degrees_is_a_corner_too():
     grids = [ids[:, :4], ids[:, 3:]]
     corner = V[ids[4, 3]]
     u = np.linspace(0, 1, 4001)
-    result = fit_patches(V, grids, MV, MF)
+    result = fit_patches(V, grids, MV, MF, fit_params())
     assert result.max_gap_mm <= 1e-9
     border = result.patches[0].surface.evaluate(u, np.ones(u.size))
     assert np.linalg.norm(border - corner, axis=1).min() <= 1e-9
     # A cubic through the turn, C2 there (the threshold was 40 degrees), misses the corner by
     # more than the tolerance.
-    smooth = fit_patches(V, grids, MV, MF, kink_angle_deg=40.0)
+    smooth = _fit_patches(V, grids, MV, MF, fit_params(), kink_angle_deg=40.0)
     border = smooth.patches[0].surface.evaluate(u, np.ones(u.size))
     assert np.linalg.norm(border - corner, axis=1).min() > smooth.tolerance_mm
 
 
 def test_a_crease_inside_a_patch_is_reported_not_accepted():
     V, ids, MV, MF = case(ridge(10.0, 0.8), (20, 10), (10, 5))
-    result = fit_patches(V, [ids], MV, MF, tolerance_mm=0.005, max_refinements=2)
+    result = fit_patches(V, [ids], MV, MF, fit_params(tolerance_mm=0.005, max_refinements=2))
     (p,) = result.patches
     assert not p.within_tolerance and p.max_error_mm > 0.005 and result.over_tolerance == [0]
     assert p.refinements >= 1
@@ -173,7 +179,7 @@ def test_a_crease_inside_a_patch_is_reported_not_accepted():
     assert abs(p.worst_point_mm[0] - 10.0) <= p.worst_crease_mm + 1e-9
     assert p.worst_crease_mm <= p.max_error_mm
     # Split at the crease, the same part fits, and the two faces share the crease exactly.
-    split = fit_patches(V, [ids[:6], ids[5:]], MV, MF, tolerance_mm=0.005)
+    split = fit_patches(V, [ids[:6], ids[5:]], MV, MF, fit_params(tolerance_mm=0.005))
     assert split.over_tolerance == [] and split.max_gap_mm <= 1e-9
 
 
@@ -189,8 +195,8 @@ def test_the_mesh_holds_the_surface_between_sparse_samples():
     # surface fitted to the samples alone leaves the mesh by more than the tolerance.
     V, ids, MV, MF = case(bump(1.0, 7.3, 4.6, 2.0), (16, 10), (8, 5), refine=8)
     sparse = dict(samples_per_face=0, max_samples_per_quad=8.0, max_refinements=0)
-    (alone,) = fit_patches(V, [ids], MV, MF, mesh_weight=0.0, **sparse).patches
-    (held,) = fit_patches(V, [ids], MV, MF, **sparse).patches
+    (alone,) = _fit_patches(V, [ids], MV, MF, fit_params(**sparse), mesh_weight=0.0).patches
+    (held,) = fit_patches(V, [ids], MV, MF, fit_params(**sparse)).patches
     assert _dense_distance(alone.surface, MV, MF) > 0.032
     assert held.within_tolerance and _dense_distance(held.surface, MV, MF) <= 0.032
 
@@ -198,8 +204,8 @@ def test_the_mesh_holds_the_surface_between_sparse_samples():
 def test_refinement_brings_a_narrow_bump_within_tolerance():
     # A bump 0.9 mm wide under knots 4 mm apart: only refitting after knot insertion can follow it.
     V, ids, MV, MF = case(bump(1.0, 7.3, 4.6, 0.9), (16, 10), (16, 10), refine=6)
-    (coarse,) = fit_patches(V, [ids], MV, MF, knot_spacing=4.0, max_refinements=0).patches
-    (fine,) = fit_patches(V, [ids], MV, MF, knot_spacing=4.0, max_refinements=3).patches
+    (coarse,) = fit_patches(V, [ids], MV, MF, fit_params(knot_spacing_quads=4.0, max_refinements=0)).patches
+    (fine,) = fit_patches(V, [ids], MV, MF, fit_params(knot_spacing_quads=4.0, max_refinements=3)).patches
     assert coarse.max_error_mm > 0.2
     assert fine.within_tolerance and fine.max_error_mm <= 0.032
     assert _dense_distance(fine.surface, MV, MF) <= 0.032
@@ -287,8 +293,8 @@ def test_the_free_fits_refinement_stays_out_of_the_final_surface():
     # curves needs no knot there beyond those it started with: inherited ones would only free its
     # rows to follow the facets.
     V, ids, MV, MF = case(cylinder(10.0), (20, 10), (10, 5), refine=1)
-    (p,) = fit_patches(V, [ids], MV, MF).patches
-    (q,) = fit_patches(V, [ids], MV, MF, max_refinements=0).patches
+    (p,) = fit_patches(V, [ids], MV, MF, fit_params()).patches
+    (q,) = fit_patches(V, [ids], MV, MF, fit_params(max_refinements=0)).patches
     assert p.within_tolerance and p.refinements == 0
     assert p.surface.control_points.shape[1] == q.surface.control_points.shape[1] == 6
 
@@ -317,22 +323,32 @@ def test_the_surface_to_mesh_distance_finds_a_peak_between_samples():
 
 
 def test_inputs_are_checked():
+    from cam.fit.param import mesh_samples
+
     V, ids, MV, MF = case(poly, (20, 10), (4, 2), refine=2)
+    # A tolerance that is not positive: the group refuses it, and so does the fit where one gets past it.
     with pytest.raises(ValueError, match="tolerance_mm"):
-        fit_patches(V, [ids], MV, MF, tolerance_mm=0)
+        fit_patches(V, [ids], MV, MF, fit_params(tolerance_mm=0))
+    with pytest.raises(ValueError, match="tolerance_mm must be positive"):
+        fit_patches(V, [ids], MV, MF, FitParams.model_construct(tolerance_mm=0.0))
+    # Unset, it is derived from the scallop height, which the fit does not know.
+    with pytest.raises(ValueError, match=r'JobParams.effective\("fit"\)'):
+        fit_patches(V, [ids], MV, MF, FitParams())
     with pytest.raises(ValueError, match="outside"):
-        fit_patches(V, [ids + 1000], MV, MF)
+        fit_patches(V, [ids + 1000], MV, MF, fit_params())
     with pytest.raises(ValueError, match="per_face"):
-        fit_patches(V, [ids], MV, MF, samples_per_face=2)
+        fit_patches(V, [ids], MV, MF, fit_params(samples_per_face=2))
+    with pytest.raises(ValueError, match="per_face"):
+        mesh_samples(MV, MF, per_face=2)
     with pytest.raises(ValueError, match="shape"):
-        fit_patches(V, [ids[:1]], MV, MF)
+        fit_patches(V, [ids[:1]], MV, MF, fit_params())
 
 
 def test_a_thinned_fit_reports_its_error_on_every_mesh_sample():
     # refine=8: 128 triangles per quad, ~190 samples per quad; the fit may use 8 per quad.
     V, ids, MV, MF = case(cylinder(25.0), (30, 15), (6, 3), refine=8)
-    every = fit_patches(V, [ids], MV, MF, max_samples_per_quad=None)
-    thin = fit_patches(V, [ids], MV, MF, max_samples_per_quad=8.0)
+    every = fit_patches(V, [ids], MV, MF, fit_params(max_samples_per_quad=None))
+    thin = fit_patches(V, [ids], MV, MF, fit_params(max_samples_per_quad=8.0))
     (a,), (b,) = every.patches, thin.patches
     assert a.samples == b.samples == len(MV) + len(MF)  # vertices plus one centroid per triangle
     # Measured on all ~3,500 samples, both meet the bound the full-data cylinder test asserts.
@@ -342,7 +358,9 @@ def test_a_thinned_fit_reports_its_error_on_every_mesh_sample():
 def test_sample_budget_must_be_positive():
     V, ids, MV, MF = case(poly, (20, 10), (10, 5))
     with pytest.raises(ValueError, match="max_samples_per_quad"):
-        fit_patches(V, [ids], MV, MF, max_samples_per_quad=0.0)
+        fit_patches(V, [ids], MV, MF, fit_params(max_samples_per_quad=0.0))
+    with pytest.raises(ValueError, match="max_samples_per_quad"):
+        fit_patches(V, [ids], MV, MF, FitParams.model_construct(tolerance_mm=0.032, max_samples_per_quad=0.0))
 
 
 def test_a_sample_a_neighbour_passes_through_is_not_counted_against_its_patch():
@@ -375,7 +393,7 @@ def test_a_crease_curve_through_a_vertex_next_to_its_neighbour_stays_on_the_crea
     V, ids, MV, MF = case(roof, (30, 15), (14, 7), refine=6)
     V[ids[7, 3]] = roof(np.array(15.0), np.array(15.0 / 7 * 4 - 0.02))
     sharp = np.stack([ids[7, :-1], ids[7, 1:]], 1)
-    result = fit_patches(V, [ids[:8], ids[7:]], MV, MF, sharp_edges=sharp)
+    result = fit_patches(V, [ids[:8], ids[7:]], MV, MF, fit_params(), sharp_edges=sharp)
     assert all(p.boundary_error_mm <= result.tolerance_mm for p in result.patches)
     assert result.max_gap_mm <= 1e-9
 

@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import json
+from typing import get_args
 
 import numpy as np
+import pydantic
 import pytest
 import trimesh
 
-from cam.ingest.clean import IngestError, clean_cloud, clean_mesh
+from cam import GeometryError
+from cam.ingest.clean import MM_PER_UNIT, IngestError, clean_cloud, clean_mesh
+from cam.params import IngestParams
 
 RNG = np.random.default_rng(11)
 
 
-def _cloud(points, normals=None, **options):
-    settings = {"scale_to_mm": 1.0, "min_points": 1, "max_points": 10_000} | options
-    return clean_cloud(points, normals, **settings)
+def _cloud(points, normals=None, units="mm", **options):
+    settings = {"min_points": 1, "max_points": 10_000} | options
+    return clean_cloud(points, normals, IngestParams(units=units), **settings)
 
 
 def _reasons(report):
@@ -57,7 +61,7 @@ def test_too_many_points_names_the_limit():
 
 def test_inch_scaling_is_exact():
     points = RNG.normal(size=(200, 3))
-    result = _cloud(points, scale_to_mm=25.4)
+    result = _cloud(points, units="inch")
     assert np.array_equal(result.points, points * 25.4)
     assert result.report["units"] == "inch" and result.report["scale_to_mm"] == 25.4
     bbox = result.report["bbox_mm"]
@@ -65,9 +69,15 @@ def test_inch_scaling_is_exact():
     assert np.isclose(bbox["diagonal"], np.linalg.norm(np.subtract(bbox["max"], bbox["min"])))
 
 
-def test_bad_scale_is_refused():
-    with pytest.raises(IngestError, match="positive"):
-        _cloud(np.zeros((3, 3)), scale_to_mm=0.0)
+def test_unknown_units_are_refused_and_every_known_unit_has_a_scale():
+    # The scale is derived from IngestParams.units, so a bad scale can no longer reach clean_cloud.
+    with pytest.raises(pydantic.ValidationError, match="units"):
+        IngestParams(units="furlong")
+    assert set(MM_PER_UNIT) == set(get_args(IngestParams.model_fields["units"].annotation))
+
+
+def test_user_errors_are_geometry_errors():
+    assert issubclass(IngestError, GeometryError)
 
 
 def test_exact_duplicates_are_removed_keeping_the_first():
@@ -101,18 +111,20 @@ def test_bad_normal_on_a_dropped_row_does_not_matter():
 
 
 def test_normals_shape_must_match():
-    with pytest.raises(IngestError, match="2 normals for 3 points"):
+    # A reader hands over one normal per point, so a mismatch is a caller's bug, not the user's.
+    with pytest.raises(ValueError, match="2 normals for 3 points") as info:
         _cloud(np.zeros((3, 3)), np.ones((2, 3)))
+    assert not isinstance(info.value, GeometryError)
 
 
-def _mesh(**options):
-    settings = {"scale_to_mm": 1.0, "max_points": 10_000} | options
-    return settings
+def _mesh(vertices, faces, units="mm", **options):
+    settings = {"max_points": 10_000} | options
+    return clean_mesh(vertices, faces, IngestParams(units=units), **settings)
 
 
 def test_clean_box_is_untouched():
     box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
-    result = clean_mesh(box.vertices, box.faces, **_mesh(format="stl_binary"))
+    result = _mesh(box.vertices, box.faces, format="stl_binary")
     assert result.report["dropped"] == [] and result.report["kind"] == "mesh"
     assert result.report["counts"] == {"read": 8, "kept": 8, "faces_read": 12, "faces_kept": 12}
     assert trimesh.Trimesh(result.vertices, result.faces, process=False).is_watertight
@@ -130,7 +142,7 @@ def test_mesh_degenerate_and_broken_faces_are_dropped():
         [[0, 10, 1]],              # repeated vertex once 10 is merged into 0
         box.faces[:1, ::-1],       # the first face again, reversed
     ])  # fmt: skip
-    result = clean_mesh(vertices, faces, **_mesh())
+    result = _mesh(vertices, faces)
     assert _reasons(result.report) == {
         "non-finite vertex coordinates": 1,
         "faces with non-finite vertices": 1,
@@ -146,7 +158,7 @@ def test_mesh_degenerate_and_broken_faces_are_dropped():
 def test_mesh_zero_area_faces_are_dropped():
     vertices = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]])
     faces = np.array([[0, 1, 3], [0, 1, 2]])
-    result = clean_mesh(vertices, faces, **_mesh(scale_to_mm=25.4))
+    result = _mesh(vertices, faces, units="inch")
     assert _reasons(result.report) == {"degenerate faces (zero area)": 1, "unreferenced vertices": 1}
     assert np.array_equal(result.vertices, vertices[[0, 1, 3]] * 25.4)
     assert np.array_equal(result.faces, [[0, 1, 2]])
@@ -154,15 +166,15 @@ def test_mesh_zero_area_faces_are_dropped():
 
 def test_mesh_with_no_usable_face_is_an_error():
     with pytest.raises(IngestError, match="no usable face remains of 2 read"):
-        clean_mesh(np.zeros((3, 3)), np.array([[0, 1, 2], [0, 0, 1]]), **_mesh())
+        _mesh(np.zeros((3, 3)), np.array([[0, 1, 2], [0, 0, 1]]))
 
 
 def test_mesh_limits_and_bad_indices():
     box = trimesh.creation.box()
     with pytest.raises(IngestError, match="8 vertices, more than the limit of 5"):
-        clean_mesh(box.vertices, box.faces, **_mesh(max_points=5))
+        _mesh(box.vertices, box.faces, max_points=5)
     with pytest.raises(IngestError, match="mesh has 8 vertices"):
-        clean_mesh(box.vertices, box.faces + 1, **_mesh())
+        _mesh(box.vertices, box.faces + 1)
 
 
 @pytest.mark.parametrize("collide", [False, True])

@@ -12,16 +12,27 @@ import time
 import numpy as np
 import pytest
 
+from cam import GeometryError
+from cam.params import ReconstructParams
 from cam.reconstruct import (
+    DivergedError,
     NormalsError,
-    ReconstructionCanceled,
     estimate_normals,
     reconstruct_surface,
 )
 from cam.reconstruct.extract import is_watertight
 
-# A short schedule on a coarse grid: the tests assert the issue's properties with it.
-FAST = dict(iterations=150, batch_size=2048, grid_cells=48, resolution=96, threads=1)
+# A short schedule on a coarse grid: the tests assert the issue's properties with it. No cap on the
+# faces, as the core had none by default before it took ReconstructParams (whose default is 200,000).
+FAST = dict(iterations=150, batch_size=2048, grid_cells=48, resolution=96, max_faces=None)
+
+
+def fast(**changes) -> ReconstructParams:
+    return ReconstructParams(**(FAST | changes))
+
+
+class Stop(Exception):
+    """The caller's own exception, raised by check_cancel."""
 
 
 def sphere_cloud(n: int, radius: float, rng: np.random.Generator, centre=(0.0, 0.0, 0.0)):
@@ -61,7 +72,7 @@ def test_sphere_within_one_percent_of_radius(with_normals):
     rng = np.random.default_rng(0)
     centre = np.array([120.0, -40.0, 7.5])
     pts, nrm = sphere_cloud(3000, 25.0, rng, centre)
-    result = reconstruct_surface(pts, nrm if with_normals else None, seed=1, **FAST)
+    result = reconstruct_surface(pts, nrm if with_normals else None, fast(seed=1), threads=1)
     r = np.linalg.norm(result.vertices - centre, axis=1)
     assert np.abs(r - 25.0).max() < 0.01 * 25.0
     assert result.report["mesh"]["watertight"]
@@ -73,7 +84,7 @@ def test_sphere_within_one_percent_of_radius(with_normals):
 def test_cube_is_watertight_and_volume_within_two_percent():
     rng = np.random.default_rng(2)
     pts, nrm = cube_cloud(12000, 40.0, rng)
-    result = reconstruct_surface(pts, nrm, seed=0, **FAST)
+    result = reconstruct_surface(pts, nrm, fast(seed=0), threads=1)
     assert result.report["mesh"]["watertight"] and is_watertight(result.faces)
     volume = mesh_volume(result.vertices, result.faces)
     assert abs(volume - 40.0**3) < 0.02 * 40.0**3
@@ -97,8 +108,8 @@ def test_cube_edges_are_sharpened_after_marching_cubes():
         band = ((gap < 1.5).sum(axis=1) == 2) & ((gap < 6.0).sum(axis=1) < 3)  # along edges, off corners
         return area[band & (off_axis < 2.0)].sum() / area[band].sum()
 
-    plain = reconstruct_surface(pts, nrm, seed=0, sharpen=False, **FAST)
-    sharp = reconstruct_surface(pts, nrm, seed=0, **FAST)
+    plain = reconstruct_surface(pts, nrm, fast(seed=0, sharpen=False), threads=1)
+    sharp = reconstruct_surface(pts, nrm, fast(seed=0), threads=1)
     assert "sharpened" not in plain.report["mesh"]
     assert sharp.report["mesh"]["sharpened"]["split"] > 0
     assert sharp.report["mesh"]["watertight"] and is_watertight(sharp.faces)
@@ -109,23 +120,23 @@ def test_cube_edges_are_sharpened_after_marching_cubes():
 def test_max_faces_caps_the_mesh_and_keeps_it_closed():
     rng = np.random.default_rng(0)
     pts, nrm = sphere_cloud(3000, 25.0, rng)
-    full = reconstruct_surface(pts, nrm, seed=1, **FAST)
-    capped = reconstruct_surface(pts, nrm, seed=1, max_faces=len(full.faces) // 3, **FAST)
+    full = reconstruct_surface(pts, nrm, fast(seed=1), threads=1)
+    capped = reconstruct_surface(pts, nrm, fast(seed=1, max_faces=len(full.faces) // 3), threads=1)
     assert len(capped.faces) <= len(full.faces) // 3
     assert capped.report["mesh"]["resolution"] < FAST["resolution"] == full.report["mesh"]["resolution"]
     assert is_watertight(capped.faces) and capped.report["mesh"]["watertight"]
     r = np.linalg.norm(capped.vertices, axis=1)
     assert np.abs(r - 25.0).max() < 0.01 * 25.0
-    with pytest.raises(ValueError, match="max_faces"):
-        reconstruct_surface(pts, nrm, max_faces=10, **FAST)
+    with pytest.raises(ValueError, match="max_faces"):  # ReconstructParams refuses it (ge=1000)
+        reconstruct_surface(pts, nrm, fast(max_faces=10), threads=1)
 
 
 def test_max_faces_holds_after_sharpening_adds_faces():
     rng = np.random.default_rng(2)
     pts, nrm = cube_cloud(12000, 40.0, rng)
-    full = reconstruct_surface(pts, nrm, seed=0, sharpen=False, **FAST)
+    full = reconstruct_surface(pts, nrm, fast(seed=0, sharpen=False), threads=1)
     cap = len(full.faces) // 2
-    capped = reconstruct_surface(pts, nrm, seed=0, max_faces=cap, **FAST)
+    capped = reconstruct_surface(pts, nrm, fast(seed=0, max_faces=cap), threads=1)
     assert capped.report["mesh"]["sharpened"]["split"] > 0
     assert len(capped.faces) <= cap and is_watertight(capped.faces)
 
@@ -138,7 +149,7 @@ def test_cube_without_normals_estimates_and_orients_them():
     inner = (np.abs(pts) < 15.0).sum(axis=1) == 2
     assert np.mean(np.einsum("ij,ij->i", est[inner], true_n[inner]) > 0.99) > 0.99
     assert info["components"] == 1
-    result = reconstruct_surface(pts, None, seed=0, **FAST)
+    result = reconstruct_surface(pts, None, fast(seed=0), threads=1)
     assert result.report["mesh"]["watertight"]
     assert abs(mesh_volume(result.vertices, result.faces) - 40.0**3) < 0.02 * 40.0**3
 
@@ -166,11 +177,10 @@ def test_noisy_cloud_widens_the_normal_fit_and_a_clean_one_keeps_it():
 def test_same_seed_same_mesh_and_other_seed_runs():
     rng = np.random.default_rng(4)
     pts, nrm = sphere_cloud(2000, 10.0, rng)
-    options = dict(FAST, iterations=60)
-    a = reconstruct_surface(pts, nrm, seed=7, **options)
-    b = reconstruct_surface(pts, nrm, seed=7, **options)
+    a = reconstruct_surface(pts, nrm, fast(iterations=60, seed=7), threads=1)
+    b = reconstruct_surface(pts, nrm, fast(iterations=60, seed=7), threads=1)
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
-    c = reconstruct_surface(pts, nrm, seed=8, **options)
+    c = reconstruct_surface(pts, nrm, fast(iterations=60, seed=8), threads=1)
     assert c.report["mesh"]["watertight"]
 
 
@@ -178,7 +188,7 @@ def test_same_seed_same_mesh_and_other_seed_runs():
 def test_extreme_scales_work(scale):
     rng = np.random.default_rng(5)
     pts, nrm = sphere_cloud(3000, 1.0, rng, centre=(3.0, 1.0, -2.0))
-    result = reconstruct_surface(pts * scale, nrm, seed=0, **FAST)
+    result = reconstruct_surface(pts * scale, nrm, fast(seed=0), threads=1)
     r = np.linalg.norm(result.vertices - np.array([3.0, 1.0, -2.0]) * scale, axis=1)
     assert np.abs(r / scale - 1.0).max() < 0.01
     assert result.report["mesh"]["watertight"]
@@ -195,50 +205,53 @@ def test_cancel_stops_training_within_a_second():
             seen["set"] = time.perf_counter()
             flag.set()
 
-    with pytest.raises(ReconstructionCanceled):
-        reconstruct_surface(pts, nrm, seed=0, progress=progress, should_cancel=flag.is_set,
-                            **dict(FAST, iterations=100_000))
+    def check_cancel():
+        if flag.is_set():
+            raise Stop
+
+    with pytest.raises(Stop):
+        reconstruct_surface(pts, nrm, fast(seed=0, iterations=100_000), threads=1, progress=progress,
+                            check_cancel=check_cancel)
     assert time.perf_counter() - seen["set"] < 1.0
 
 
 def test_cancel_exception_from_callback_passes_through():
-    class Stop(Exception):
-        pass
-
-    def should_cancel():
+    def check_cancel():
         raise Stop
 
     rng = np.random.default_rng(6)
     pts, nrm = sphere_cloud(500, 10.0, rng)
     with pytest.raises(Stop):
-        reconstruct_surface(pts, nrm, should_cancel=should_cancel, **FAST)
+        reconstruct_surface(pts, nrm, fast(), threads=1, check_cancel=check_cancel)
 
 
 def test_progress_is_reported_per_iteration():
     rng = np.random.default_rng(7)
     pts, nrm = sphere_cloud(1000, 10.0, rng)
     calls = []
-    reconstruct_surface(pts, nrm, progress=lambda f, m: calls.append((f, m)), **dict(FAST, iterations=20))
+    reconstruct_surface(pts, nrm, fast(iterations=20), threads=1, progress=lambda f, m=None: calls.append((f, m)))
     fractions = [f for f, _ in calls]
     assert sum(1 for _, m in calls if m and m.startswith("iteration")) == 20
     assert fractions == sorted(fractions) and 0 <= fractions[0] and fractions[-1] <= 1
 
 
 @pytest.mark.parametrize(
-    "make, message",
+    "make, message, users",
     [
-        (lambda rng: rng.normal(size=(50, 3)), "at least 100"),
-        (lambda rng: np.repeat(rng.normal(size=(10, 3)), 50, axis=0), "distinct"),
-        (lambda rng: np.outer(rng.normal(size=500), [1.0, 2.0, 3.0]) + [5.0, 0.0, 0.0], "collinear"),
-        (lambda rng: np.column_stack([rng.normal(size=(500, 2)), np.full(500, 3.0)]), "coplanar"),
-        (lambda rng: np.vstack([rng.normal(size=(499, 3)), [[np.nan, 0.0, 0.0]]]), "non-finite"),
-        (lambda rng: rng.normal(size=(500, 2)), "shape"),
+        (lambda rng: rng.normal(size=(50, 3)), "at least 100", True),
+        (lambda rng: np.repeat(rng.normal(size=(10, 3)), 50, axis=0), "distinct", True),
+        (lambda rng: np.outer(rng.normal(size=500), [1.0, 2.0, 3.0]) + [5.0, 0.0, 0.0], "collinear", True),
+        (lambda rng: np.column_stack([rng.normal(size=(500, 2)), np.full(500, 3.0)]), "coplanar", True),
+        (lambda rng: np.vstack([rng.normal(size=(499, 3)), [[np.nan, 0.0, 0.0]]]), "non-finite", False),
+        (lambda rng: rng.normal(size=(500, 2)), "shape", False),
     ],
     ids=["too-few", "duplicates-only", "collinear", "coplanar", "nan", "not-3d"],
 )
-def test_bad_clouds_fail_with_a_message(make, message):
-    with pytest.raises(ValueError, match=message):
-        reconstruct_surface(make(np.random.default_rng(8)), None, **FAST)
+def test_bad_clouds_fail_with_a_message(make, message, users):
+    """What the user can change is a GeometryError; what only a caller can get wrong a plain ValueError."""
+    with pytest.raises(ValueError, match=message) as info:
+        reconstruct_surface(make(np.random.default_rng(8)), None, fast(), threads=1)
+    assert isinstance(info.value, GeometryError) == users
 
 
 def test_zero_length_or_nan_normals_fail_with_a_message():
@@ -246,29 +259,35 @@ def test_zero_length_or_nan_normals_fail_with_a_message():
     pts, nrm = sphere_cloud(500, 10.0, rng)
     nrm[[3, 17]] = 0.0
     with pytest.raises(NormalsError, match="2 of 500 normals are zero length"):
-        reconstruct_surface(pts, nrm, **FAST)
+        reconstruct_surface(pts, nrm, fast(), threads=1)
     nrm[[3, 17]] = [np.nan, 0, 0]
     with pytest.raises(ValueError, match="not finite"):
-        reconstruct_surface(pts, nrm, **FAST)
+        reconstruct_surface(pts, nrm, fast(), threads=1)
     with pytest.raises(ValueError, match="shape"):
-        reconstruct_surface(pts, nrm[:10], **FAST)
+        reconstruct_surface(pts, nrm[:10], fast(), threads=1)
+    assert issubclass(NormalsError, GeometryError)
 
 
 def test_diverging_training_fails_with_that_message():
     rng = np.random.default_rng(10)
     pts, nrm = sphere_cloud(1000, 10.0, rng)
-    with pytest.raises(ValueError, match="diverged"):
-        # A huge eikonal weight with a huge step overflows float32 within a few steps.
-        reconstruct_surface(pts, nrm, learning_rate=1.0, eikonal_weight=1e38, **FAST)
+    # A huge eikonal weight with a huge step overflows float32 within a few steps. 1e38 is above
+    # ReconstructParams' bound on eikonal_weight (100, where no run diverges), so the group is built
+    # without validation to reach the training's own check.
+    params = fast(learning_rate=1.0).model_copy(update={"eikonal_weight": 1e38})
+    with pytest.raises(DivergedError, match="diverged") as info:
+        reconstruct_surface(pts, nrm, params, threads=1)
+    assert isinstance(info.value, GeometryError)
 
 
 def test_bad_options_fail_with_a_message():
     rng = np.random.default_rng(11)
     pts, nrm = sphere_cloud(500, 10.0, rng)
+    # Both are now refused by ReconstructParams itself (a pydantic ValidationError is a ValueError).
     with pytest.raises(ValueError, match="preset"):
-        reconstruct_surface(pts, nrm, preset="nope")
+        reconstruct_surface(pts, nrm, ReconstructParams(preset="nope"))
     with pytest.raises(ValueError, match="iterations"):
-        reconstruct_surface(pts, nrm, iterations=0)
+        reconstruct_surface(pts, nrm, ReconstructParams(iterations=0))
 
 
 def test_non_orientable_cloud_is_refused():
@@ -288,8 +307,9 @@ def test_mlp_field_runs_a_few_iterations():
     """The paper's network (sphere start) is kept available; a smoke run checks it trains and extracts."""
     rng = np.random.default_rng(12)
     pts, nrm = sphere_cloud(1000, 10.0, rng)
-    result = reconstruct_surface(pts, nrm, preset="mlp", width=32, depth=4, iterations=30, batch_size=512,
-                                 resolution=48, threads=1)
+    params = ReconstructParams(preset="mlp", width=32, depth=4, iterations=30, batch_size=512, resolution=48,
+                               max_faces=None)
+    result = reconstruct_surface(pts, nrm, params, threads=1)
     assert result.report["options"]["field"] == "mlp"
     assert result.report["mesh"]["watertight"]
     r = np.linalg.norm(result.vertices, axis=1)

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cam import GeometryError
 from cam.io import read_ply, write_ply_points
 from core.params import JobParams
-from worker.context import StageCanceled, StageContext, StageError, StageSkipped
+from worker.context import StageCanceled, StageContext, StageSkipped
 from worker.stages.reconstruct import run_reconstruct
 
 SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -27,7 +28,7 @@ def _ctx(tmp_path: Path, cloud: Path, params: dict, **callbacks) -> StageContext
     out = tmp_path / "out"
     out.mkdir(exist_ok=True)
     return StageContext(job_id="j", stage="reconstruct", inputs={"cloud.ply": cloud}, out_dir=out,
-                        params=JobParams.model_validate({"reconstruct": params}).model_dump(),
+                        params=JobParams.model_validate({"reconstruct": params}),
                         settings={"blas_threads": 1}, **callbacks)
 
 
@@ -58,16 +59,17 @@ def test_stage_cancel_raises_stage_canceled(tmp_path):
     assert not ctx.output("mesh_raw.ply").exists()
 
 
-def test_stage_bad_cloud_is_a_stage_error(tmp_path):
+def test_stage_bad_cloud_is_a_geometry_error(tmp_path):
+    """The core's GeometryError reaches the runner as it is, which shows its message to the user."""
     flat = np.column_stack([np.random.default_rng(0).uniform(0, 10, size=(500, 2)), np.zeros(500)])
     cloud = write_ply_points(tmp_path / "cloud.ply", flat)
-    with pytest.raises(StageError, match="coplanar"):
+    with pytest.raises(GeometryError, match="coplanar"):
         run_reconstruct(_ctx(tmp_path, cloud, FAST))
 
 
 def test_stage_skips_a_mesh_upload(tmp_path):
     ctx = StageContext(job_id="j", stage="reconstruct", inputs={}, out_dir=tmp_path,
-                       params=JobParams().model_dump(), settings={})
+                       params=JobParams(), settings={})
     with pytest.raises(StageSkipped, match="mesh"):
         run_reconstruct(ctx)
 
@@ -82,13 +84,15 @@ def test_stage_defaults_come_from_the_core(tmp_path):
 def test_fandisk_cloud_gives_one_watertight_part_close_to_the_truth():
     import trimesh
 
+    from cam.params import ReconstructParams
     from cam.reconstruct import reconstruct_surface
 
     gt = trimesh.load(SHARED_DATA / "fandisk_gt.obj", process=False)
     gt.apply_scale(10.0)
     pts, fi = trimesh.sample.sample_surface(gt, 20000, seed=0)
-    result = reconstruct_surface(pts, gt.face_normals[fi], grid_cells=96, resolution=192,
-                                 threads=1, seed=0)
+    # max_faces=None: the core's default before it took ReconstructParams (whose default caps at 200,000).
+    result = reconstruct_surface(pts, gt.face_normals[fi],
+                                 ReconstructParams(grid_cells=96, resolution=192, max_faces=None, seed=0), threads=1)
     mesh = trimesh.Trimesh(result.vertices, result.faces, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.body_count == 1
     assert abs(mesh.volume - gt.volume) < 0.01 * gt.volume

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from cam import GeometryError
 from cam.io.quads import read_quad_obj
 from cam.mesh.quads import face_areas, face_normals
+from cam.params import RemeshParams
 from cam.remesh.check import inspect_quad_mesh
 from tests.conftest import SHARED_DATA
 
@@ -15,6 +17,7 @@ pytest.importorskip("pyQuadriFlow")
 
 from cam.remesh.quadriflow import (
     QuadriflowFailed,
+    RemeshFailed,
     boundary_loop_count,
     remesh_quads,
     run_quadriflow,
@@ -34,7 +37,7 @@ def _box_triangles():
 
 def test_remesh_box_is_checked_closed_and_on_the_surface():
     mesh = _box_triangles()
-    result = remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=0, timeout_s=120)
+    result = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=300, seed=0, timeout_s=120))
     v, f = result.vertices, result.faces
     report = inspect_quad_mesh(v, f)
     assert report.problems == () and report.boundary_loop_lengths == () and report.components == 1
@@ -56,8 +59,12 @@ def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
     mesh = _box_triangles()
     with pytest.raises(QuadriflowFailed, match="timed out"):
         run_quadriflow(mesh.vertices, mesh.faces, target_faces=300, seed=0, timeout_s=0.01)
-    with pytest.raises(ValueError, match=r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 288 faces: timed out"):
-        remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=5, attempts=2, timeout_s=0.01)
+    # A limit far below the group's 10 s minimum makes every run time out: built without validation.
+    params = RemeshParams.model_construct(target_faces=300, seed=5, attempts=2, timeout_s=0.01)
+    expected = r"2 attempt\(s\): seed 5, 300 faces: timed out.*seed 6, 288 faces: timed out"
+    with pytest.raises(RemeshFailed, match=expected):
+        remesh_quads(mesh.vertices, mesh.faces, params)
+    assert issubclass(RemeshFailed, GeometryError)  # the runner shows its message to the user
 
 
 def test_the_report_counts_every_run_and_the_failed_ones(monkeypatch):
@@ -73,7 +80,7 @@ def test_the_report_counts_every_run_and_the_failed_ones(monkeypatch):
 
     monkeypatch.setattr(remesh, "run_quadriflow", flaky)
     mesh = _box_triangles()
-    result = remesh_quads(mesh.vertices, mesh.faces, target_faces=300, seed=0, attempts=3, timeout_s=120)
+    result = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=300, seed=0, attempts=3, timeout_s=120))
     assert result.report["seed"] == 0 and [c["seed"] for c in result.report["candidates"]] == [0]
     assert result.report["attempts"] == 3
     # The first failure ran at the target; the run after it at a nudged count.
@@ -95,7 +102,8 @@ def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
     from cam.remesh.creases import measure_crease_following
 
     mesh = _box_with_a_corner_cut_off()
-    result = remesh_quads(mesh.vertices, mesh.faces, target_faces=400, seed=0, candidates=3, timeout_s=120)
+    result = remesh_quads(mesh.vertices, mesh.faces,
+                          RemeshParams(target_faces=400, seed=0, candidates=3, timeout_s=120))
     report = result.report
     seen = report["candidates"]
     assert [c["seed"] for c in seen] == [0, 1, 2] and report["attempts"] == 3
@@ -105,33 +113,43 @@ def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
     assert report["missed_crease_mm"] == again.missed_length_mm == best["missed_crease_mm"]
     assert report["crease_length_mm"] == pytest.approx(again.crease_length_mm)
     # One candidate is the first run that passes.
-    first = remesh_quads(mesh.vertices, mesh.faces, target_faces=400, seed=0, candidates=1, timeout_s=120)
+    first = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=400, seed=0, candidates=1, timeout_s=120))
     assert first.report["seed"] == 0 and first.report["attempts"] == 1 and len(first.report["candidates"]) == 1
     assert first.report["missed_crease_mm"] == seen[0]["missed_crease_mm"]
 
 
-def test_poll_stops_the_child():
-    mesh = _box_triangles()
+class _Canceled(Exception):
+    """The caller's own cancellation: cam lets it through untouched."""
 
-    class Canceled(Exception):
-        pass
 
-    def poll():
-        raise Canceled
+def _cancel():
+    raise _Canceled
 
-    big = mesh.subdivide().subdivide()
-    with pytest.raises(Canceled):
-        run_quadriflow(big.vertices, big.faces, target_faces=20000, seed=0, timeout_s=60, poll=poll)
+
+def test_check_cancel_stops_the_child():
+    big = _box_triangles().subdivide().subdivide()
+    with pytest.raises(_Canceled):
+        run_quadriflow(big.vertices, big.faces, target_faces=20000, seed=0, timeout_s=60, check_cancel=_cancel)
+
+
+def test_check_cancel_propagates_out_of_remesh_quads():
+    # Not counted as a failed attempt and retried: the caller's exception leaves at once.
+    big = _box_triangles().subdivide().subdivide()
+    with pytest.raises(_Canceled):
+        remesh_quads(big.vertices, big.faces, RemeshParams(target_faces=20000, timeout_s=60), check_cancel=_cancel)
 
 
 def test_bad_inputs_are_named():
     with pytest.raises(ValueError, match="triangles must be"):
-        remesh_quads(np.zeros((3, 3)), np.zeros((0, 3), dtype=int), target_faces=10)
+        remesh_quads(np.zeros((3, 3)), np.zeros((0, 3), dtype=int))
     with pytest.raises(ValueError, match="vertices must be"):
-        remesh_quads(np.full((3, 3), np.nan), np.array([[0, 1, 2]]), target_faces=10)
+        remesh_quads(np.full((3, 3), np.nan), np.array([[0, 1, 2]]))
     box = _box_triangles()
+    # The group rejects these; remesh_quads still names them when a group was built without validation.
     with pytest.raises(ValueError, match="candidates ≥ 1"):
-        remesh_quads(box.vertices, box.faces, target_faces=10, candidates=0)
+        remesh_quads(box.vertices, box.faces, RemeshParams.model_construct(target_faces=10, candidates=0))
+    with pytest.raises(GeometryError, match="zero extent"):
+        remesh_quads(np.zeros((3, 3)), np.array([[0, 1, 2]]))
 
 
 def test_boundary_loops_of_a_triangle_mesh():
@@ -151,7 +169,7 @@ def test_remesh_stage_writes_quads_obj(tmp_path):
     out_dir.mkdir()
     seen = []
     ctx = StageContext(job_id="j", stage="remesh", inputs={"mesh.ply": src}, out_dir=out_dir,
-                       params=JobParams.model_validate({"remesh": {"target_faces": 300}}).model_dump(), settings={},
+                       params=JobParams.model_validate({"remesh": {"target_faces": 300}}), settings={},
                        progress=lambda f, m=None: seen.append(f))
     out = run_remesh(ctx)
     assert set(out) == {"quads.obj", "remesh.json"}
@@ -160,10 +178,48 @@ def test_remesh_stage_writes_quads_obj(tmp_path):
     assert seen and max(seen) <= 1.0
 
 
+def _stage_ctx(tmp_path, mesh, **callbacks):
+    from cam.io import write_ply_mesh
+    from worker.context import StageContext
+
+    src = write_ply_mesh(tmp_path / "mesh.ply", mesh.vertices, mesh.faces)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    return StageContext(job_id="j", stage="remesh", inputs={"mesh.ply": src}, out_dir=out_dir,
+                        params=JobParams.model_validate({"remesh": {"target_faces": 300, "attempts": 2}}),
+                        settings={}, **callbacks)
+
+
+def test_remesh_stage_lets_the_cancel_through(tmp_path):
+    from worker.context import StageCanceled
+    from worker.stages.remesh import run_remesh
+
+    def canceled():
+        raise StageCanceled
+
+    with pytest.raises(StageCanceled):
+        run_remesh(_stage_ctx(tmp_path, _box_triangles().subdivide().subdivide(), check_cancel=canceled))
+
+
+def test_remesh_stage_failure_reaches_the_user_as_it_is(tmp_path, monkeypatch):
+    import cam.remesh.quadriflow as remesh
+    from worker.stages.remesh import run_remesh
+
+    def crashed(vertices, triangles, **kw):
+        raise QuadriflowFailed("QuadriFlow crashed (exit status -11)")
+
+    monkeypatch.setattr(remesh, "run_quadriflow", crashed)
+    with pytest.raises(GeometryError) as info:
+        run_remesh(_stage_ctx(tmp_path, _box_triangles()))
+    assert str(info.value) == ("QuadriFlow gave no usable quad mesh in 2 attempt(s): seed 0, 300 faces: QuadriFlow "
+                               "crashed (exit status -11); seed 1, 288 faces: QuadriFlow crashed (exit status -11). "
+                               "Try another remesh.target_faces or remesh.seed")
+
+
 @pytest.mark.skipif(not (SHARED_DATA / "fandisk_gt.obj").exists(), reason="../shared/data is absent")
 def test_remesh_fandisk_keeps_its_sharp_edges():
     mesh = trimesh.load(SHARED_DATA / "fandisk_gt.obj", process=False)
-    result = remesh_quads(mesh.vertices * 10, mesh.faces, target_faces=1500, seed=0, timeout_s=120)
+    result = remesh_quads(mesh.vertices * 10, mesh.faces, RemeshParams(target_faces=1500, seed=0, timeout_s=120))
     assert inspect_quad_mesh(result.vertices, result.faces).problems == ()
     assert result.report["hausdorff_ratio"] < 0.03
 

@@ -7,12 +7,15 @@ import json
 import numpy as np
 import pytest
 
+from cam import GeometryError
 from cam.io.quads import read_quad_obj, write_quad_obj
 from cam.mesh.quads import face_normals, quad_topology
+from cam.params import RemeshParams, SegmentParams
 from cam.segment import segment_quads
 from cam.segment.clip import CutState, complete_cuts, patch_labels
 from cam.segment.graph import kruskal
 from cam.segment.patches import grid_of_patch
+from cam.segment.sharp import find_sharp_edges
 from cam.segment.traces import straight_continuation, trace_line
 from core.params import JobParams
 from tests.conftest import SHARED_DATA
@@ -71,14 +74,14 @@ def test_box_standing_on_its_side_takes_that_side_as_base():
 
 def test_box_without_base_removal_has_six_patches():
     v, f = quad_box((2, 2, 3), size=(10.0, 10.0, 30.0))
-    seg = segment_quads(v, f, remove_base=False)
+    seg = segment_quads(v, f, SegmentParams(remove_base=False))
     assert check_partition(v, f, seg) == 6 and len(seg.base_faces) == 0
 
 
 @pytest.mark.parametrize("remove_base", [True, False])
 def test_capped_cylinder_segments_with_its_rims_on_boundaries(remove_base):
     v, f = quad_capped_cylinder(2, 2, 4, radius=20.0, height=10.0)
-    seg = segment_quads(v, f, remove_base=remove_base)
+    seg = segment_quads(v, f, SegmentParams(remove_base=remove_base))
     check_partition(v, f, seg)
     assert seg.stats["sharp_edges"] == 2 * 8  # the two rims
     assert seg.stats["cylinder_cuts"] >= 1  # the side band was cut open
@@ -98,7 +101,7 @@ def test_torus_traces_terminate_and_the_torus_segments():
     capped = trace_line(topo, straight, 0, stop=lambda g: False, max_steps=3)
     assert capped.reason == "steps" and len(capped.half_edges) == 3
     for remove_base in (True, False):
-        seg = segment_quads(v, f, remove_base=remove_base)
+        seg = segment_quads(v, f, SegmentParams(remove_base=remove_base))
         check_partition(v, f, seg)
 
 
@@ -106,7 +109,7 @@ def test_methods_agree_on_validity_and_the_baseline_cuts_more():
     v, f = quad_capped_cylinder(3, 2, 4, radius=20.0, height=30.0)
     counts = {}
     for method in ("mst", "greedy", "motorcycle"):
-        seg = segment_quads(v, f, method=method, remove_base=False)
+        seg = segment_quads(v, f, SegmentParams(method=method, remove_base=False))
         counts[method] = len(seg.patches)
         assert seg.stats["sharp_on_boundary"] == seg.stats["sharp_in_domain"]
     assert counts["mst"] <= counts["motorcycle"]
@@ -114,16 +117,22 @@ def test_methods_agree_on_validity_and_the_baseline_cuts_more():
 
 def test_bad_inputs_are_named():
     v, f = quad_box((1, 1, 1))
+    # The group rejects an unknown method; segment_quads still names it when a group was built without validation.
     with pytest.raises(ValueError, match="method must be one of"):
-        segment_quads(v, f, method="magic")
+        segment_quads(v, f, SegmentParams.model_construct(method="magic"))
     with pytest.raises(ValueError, match="faces must be a non-empty"):
         segment_quads(v, f[:, :3])
+    # θ = 0 is outside the group's bounds: the check it exercises is find_sharp_edges'.
     with pytest.raises(ValueError, match="sharp_angle_deg"):
-        segment_quads(v, f, sharp_angle_deg=0.0)
-    with pytest.raises(ValueError, match="inconsistently oriented"):
+        find_sharp_edges(quad_topology(f, len(v)), face_normals(v, f), sharp_angle_deg=0.0)
+    # What the user can act on (the mesh, the parameters) is a GeometryError; array shapes stay ValueError.
+    with pytest.raises(GeometryError, match="inconsistently oriented"):
         segment_quads(v, np.vstack([f[:1], f[1:, ::-1]]))
+    with pytest.raises(ValueError, match="index vertices") as info:
+        segment_quads(v, f + 1)
+    assert not isinstance(info.value, GeometryError)
     g, q = quad_grid(3, 3)
-    with pytest.raises(ValueError, match="removing the base leaves no faces"):
+    with pytest.raises(GeometryError, match="removing the base leaves no faces"):
         segment_quads(g, q)
 
 
@@ -166,14 +175,14 @@ def test_grid_check_names_an_l_shape():
 
 # --- the stage ------------------------------------------------------------------------------------------------
 
-def _ctx(tmp_path, v, f, params):
+def _ctx(tmp_path, v, f, params, **callbacks):
     from worker.context import StageContext
 
     src = write_quad_obj(tmp_path / "quads.obj", v, f)
     out_dir = tmp_path / "out"
     out_dir.mkdir()
     return StageContext(job_id="j", stage="segment", inputs={"quads.obj": src}, out_dir=out_dir,
-                        params=JobParams.model_validate({"segment": params}).model_dump(), settings={})
+                        params=JobParams.model_validate({"segment": params}), settings={}, **callbacks)
 
 
 def test_segment_stage_writes_the_design_fields(tmp_path):
@@ -184,6 +193,7 @@ def test_segment_stage_writes_the_design_fields(tmp_path):
     assert set(out) == {"patches.json", "segments.ply", "setup.json"}
     doc = json.loads(out["patches.json"].read_text())
     assert len(doc["patches"]) == 5 and len(doc["base_faces"]) == 12 and len(doc["sharp_edges"]) == 36
+    assert doc["params"] == SegmentParams(sharp_angle_deg=50.0).model_dump(mode="json")
     for p in doc["patches"]:
         assert {"id", "faces", "rows", "cols", "corners", "sharp_boundary"} <= set(p)
         assert len(p["corners"]) == 4 and p["rows"] * p["cols"] == len(p["faces"]) and p["sharp_boundary"]
@@ -215,9 +225,32 @@ def test_segment_stage_reports_unreadable_input(tmp_path):
 
     (tmp_path / "quads.obj").write_text("v 0 0 0\nf 1 1 1\n")
     ctx = StageContext(job_id="j", stage="segment", inputs={"quads.obj": tmp_path / "quads.obj"}, out_dir=tmp_path,
-                       params=JobParams().model_dump(), settings={})
+                       params=JobParams(), settings={})
     with pytest.raises(StageError, match="could not read quads.obj"):
         run_segment(ctx)
+
+
+def test_segment_stage_names_the_file_it_cannot_segment(tmp_path):
+    from worker.context import StageError
+    from worker.stages.segment import run_segment
+
+    g, q = quad_grid(3, 3)
+    with pytest.raises(StageError, match="^cannot segment quads.obj: removing the base leaves no faces to machine; "
+                                         "set segment.remove_base to false$"):
+        run_segment(_ctx(tmp_path, g, q, {}))
+
+
+def test_segment_stage_lets_the_cancel_through(tmp_path):
+    from worker.context import StageCanceled
+    from worker.stages.segment import run_segment
+
+    def canceled():
+        raise StageCanceled
+
+    v, f = quad_box((4, 3, 2), size=(40.0, 30.0, 20.0))
+    with pytest.raises(StageCanceled):
+        run_segment(_ctx(tmp_path, v, f, {}, check_cancel=canceled))
+    assert not (tmp_path / "out" / "patches.json").exists()
 
 
 # --- parts that need QuadriFlow -------------------------------------------------------------------------------
@@ -226,7 +259,7 @@ def _quadriflow(vertices, triangles, target):
     pytest.importorskip("pyQuadriFlow")
     from cam.remesh.quadriflow import remesh_quads
 
-    result = remesh_quads(vertices, triangles, target_faces=target, seed=0, timeout_s=120)
+    result = remesh_quads(vertices, triangles, RemeshParams(target_faces=target, seed=0, timeout_s=120))
     return result.vertices, result.faces
 
 
@@ -251,7 +284,7 @@ def test_fandisk_segments_into_valid_patches():
     v, f = _quadriflow(mesh.vertices * 10, mesh.faces, 1500)
     mst = segment_quads(v, f)
     check_partition(v, f, mst)
-    baseline = segment_quads(v, f, method="motorcycle")
+    baseline = segment_quads(v, f, SegmentParams(method="motorcycle"))
     assert len(mst.patches) < len(baseline.patches)
 
 

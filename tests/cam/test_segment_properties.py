@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
 from cam.mesh.quads import quad_topology
+from cam.params import SegmentParams
 from cam.segment import segment_quads
 from cam.segment.traces import straight_continuation, trace_line
 from tests.cam.test_segment import check_partition
@@ -27,7 +28,7 @@ FAST = settings(max_examples=30, deadline=None, suppress_health_check=[HealthChe
        size=st.tuples(st.floats(1, 100), st.floats(1, 100), st.floats(1, 100)), method=st.sampled_from(["mst", "greedy"]))
 def test_boxes_segment_into_their_faces(n, size, method):
     v, f = quad_box(n, size=size)
-    seg = segment_quads(v, f, method=method)
+    seg = segment_quads(v, f, SegmentParams(method=method))
     assert check_partition(v, f, seg) == 5
 
 
@@ -38,7 +39,7 @@ def test_random_polyhedra_with_many_extraordinary_points(seed, points, theta, re
     rng = np.random.default_rng(seed)
     hull = trimesh.convex.convex_hull(rng.normal(size=(points, 3)) * rng.uniform(1, 50))
     v, f = quads_from_triangles(hull.vertices, hull.faces)
-    seg = segment_quads(v, f, sharp_angle_deg=theta, remove_base=remove_base, method=method)
+    seg = segment_quads(v, f, SegmentParams(sharp_angle_deg=theta, remove_base=remove_base, method=method))
     check_partition(v, f, seg)
     assert seg.stats["extraordinary_points"] > 0
 
@@ -51,7 +52,7 @@ def test_random_open_sheets(seed, points, bump):
     tri = Delaunay(xy)
     v3 = np.c_[xy * 40, bump * np.sin(xy[:, 0] * 6)]
     v, f = quads_from_triangles(v3, tri.simplices)
-    seg = segment_quads(v, f, remove_base=False)
+    seg = segment_quads(v, f, SegmentParams(remove_base=False))
     check_partition(v, f, seg)
 
 
@@ -60,7 +61,7 @@ def test_random_open_sheets(seed, points, bump):
        remove_base=st.booleans())
 def test_capped_cylinders(k, rings, layers, height, remove_base):
     v, f = quad_capped_cylinder(k, rings, layers, radius=20.0, height=height)
-    seg = segment_quads(v, f, remove_base=remove_base)
+    seg = segment_quads(v, f, SegmentParams(remove_base=remove_base))
     check_partition(v, f, seg)
 
 
@@ -76,5 +77,5 @@ def test_torus_lines_close_and_every_line_ends(nu, nv):
         assert t.reason == "self" and t.end == t.vertices[0]
         lengths.add(len(t.half_edges))
     assert lengths <= {nu, nv}
-    seg = segment_quads(v, f, remove_base=False)
+    seg = segment_quads(v, f, SegmentParams(remove_base=False))
     check_partition(v, f, seg)

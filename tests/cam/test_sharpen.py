@@ -105,17 +105,17 @@ def test_bad_feature_size_is_refused():
         sharpen_creases(v, f, feature_size=0.0)
 
 
-def test_poll_stops_the_work_between_phases():
+def test_check_cancel_stops_the_work_between_phases():
     v, f = _extract(_box_sdf)
     calls = []
 
     class Stop(Exception):
         pass
 
-    def poll():
+    def check_cancel():
         calls.append(None)
         raise Stop
 
     with pytest.raises(Stop):
-        sharpen_creases(v, f, feature_size=2 * H, poll=poll)
+        sharpen_creases(v, f, feature_size=2 * H, check_cancel=check_cancel)
     assert len(calls) == 1

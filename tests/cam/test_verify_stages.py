@@ -20,7 +20,7 @@ def _ctx(tmp_path, stage, inputs, dialect="linuxcnc"):
     out = tmp_path / stage
     out.mkdir()
     return StageContext(job_id="job-1", stage=stage, inputs=inputs, out_dir=out,
-                        params=JobParams.model_validate(params).model_dump(), settings={})
+                        params=JobParams.model_validate(params), settings={})
 
 
 def test_plan_then_verify(tmp_path):

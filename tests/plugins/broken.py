@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from cam.io import write_json
 from core.stages import StageSpec
-from worker.context import StageContext, StageError, write_json
+from worker.context import StageContext, StageError
 
 
 def run_inspectable_failure(ctx: StageContext) -> dict[str, Path]:

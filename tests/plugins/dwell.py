@@ -12,8 +12,9 @@ import os
 import time
 from pathlib import Path
 
+from cam.io import write_json
 from core.stages import StageSpec
-from worker.context import StageContext, write_json
+from worker.context import StageContext
 
 
 def run_dwell(ctx: StageContext) -> dict[str, Path]:

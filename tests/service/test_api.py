@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
 from core.config import Settings
 from core.stages import DESIGN_ORDER
+from service.app import create_app
 from tests.conftest import ROOT, xyz_bytes
 
 PROBLEM = "application/problem+json"

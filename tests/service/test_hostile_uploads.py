@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
 from core.config import Settings
+from service.app import create_app
 from tests.conftest import xyz_bytes
 from tests.service.test_api import assert_problem
 from worker.runner import run_stage

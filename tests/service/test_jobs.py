@@ -8,6 +8,7 @@ import pytest
 
 from core import jobs
 from core.db import Job, get_sessionmaker
+from core.params import JobParams
 from core.stages import DESIGN_ORDER, STAGES, cache_key, load_stages
 
 
@@ -92,14 +93,25 @@ def test_cancel_marks_queued_stages_and_refuses_finished_jobs(Session):
 
 def test_cache_key_depends_only_on_what_the_stage_reads():
     spec = STAGES[0]
-    base = {"ingest": {"units": "mm"}, "tool": {"radius_mm": 3}}
+    base = JobParams(ingest={"units": "mm"}, tool={"radius_mm": 3})
     settings = {"min_points": 10, "max_points": 100}
     key = cache_key(spec, base, {"input": "a" * 64}, settings, code="c")
-    assert key == cache_key(spec, {**base, "tool": {"radius_mm": 1}}, {"input": "a" * 64}, settings, code="c")
-    assert key != cache_key(spec, {**base, "ingest": {"units": "inch"}}, {"input": "a" * 64}, settings, code="c")
+    assert key == cache_key(spec, JobParams(tool={"radius_mm": 1}), {"input": "a" * 64}, settings, code="c")
+    assert key != cache_key(spec, JobParams(ingest={"units": "inch"}), {"input": "a" * 64}, settings, code="c")
     assert key != cache_key(spec, base, {"input": "b" * 64}, settings, code="c")
     assert key != cache_key(spec, base, {"input": "a" * 64}, {**settings, "max_points": 99}, code="c")
     assert key != cache_key(spec, base, {"input": "a" * 64}, settings, code="d")
+
+
+def test_the_fit_cache_key_follows_the_tolerance_it_uses_not_the_toolpath_group():
+    fit = next(s for s in STAGES if s.name == "fit")
+    key = cache_key(fit, JobParams(), {}, {}, code="c")
+    # A new dialect or tool changes the programs, not the surfaces: the fit is reused.
+    assert key == cache_key(fit, JobParams(toolpath={"dialect": "fanuc"}, tool={"radius_mm": 2}), {}, {}, code="c")
+    # The unset tolerance is a fifth of the scallop height: a new height is a new fit, an explicit
+    # tolerance equal to the derived one is the same fit.
+    assert key != cache_key(fit, JobParams(toolpath={"scallop_height_mm": 0.1}), {}, {}, code="c")
+    assert key == cache_key(fit, JobParams(fit={"tolerance_mm": 0.032}), {}, {}, code="c")
 
 
 def test_cache_key_follows_the_code_the_stage_runs(tmp_path, monkeypatch):
@@ -117,7 +129,7 @@ def test_cache_key_follows_the_code_the_stage_runs(tmp_path, monkeypatch):
     spec = StageSpec(name="extra", version="1", inputs=(), outputs=(), param_groups=())
 
     def key_now() -> str:
-        return cache_key(spec, {}, {}, {}, code=code_digest("plugpkg.stage"))
+        return cache_key(spec, JobParams(), {}, {}, code=code_digest("plugpkg.stage"))
 
     key = key_now()
     assert key == key_now()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
 from core.config import Settings
+from service.app import create_app
 from tests.conftest import xyz_bytes
 from worker.runner import Outcome, run_stage
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import schemathesis
 from hypothesis import HealthCheck, settings
 
-from service.app import create_app
 from core.config import Settings
+from service.app import create_app
 
 _DATA = Path(tempfile.mkdtemp(prefix="c2c-schemathesis-"))
 app = create_app(Settings(data_dir=_DATA, min_points=10), reconcile=False)

@@ -5,26 +5,17 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from cam.denoise.mesh_tgv import DenoiseCanceled, denoise_mesh
-from cam.io import read_ply, write_ply_mesh
-from worker.context import (
-    StageCanceled,
-    StageContext,
-    StageError,
-    StageSkipped,
-    write_json,
-)
-
-# JobParams.denoise fields passed to the core under the same names.
-_CORE_OPTIONS = ("alpha0", "alpha1", "penalty0", "penalty1", "vertex_iterations", "flip_repair_rounds",
-                 "max_iterations", "tolerance", "noise_reference_deg")
+from cam import GeometryError
+from cam.denoise import denoise_mesh
+from cam.io import read_ply, write_json, write_ply_mesh
+from worker.context import StageContext, StageError, StageSkipped
 
 
 def run_denoise(ctx: StageContext) -> dict[str, Path]:
-    params = ctx.params["denoise"]
+    params = ctx.params.denoise
     if "mesh_raw.ply" not in ctx.inputs:
         raise StageError("this job has no mesh_raw.ply to denoise (reconstruct produced none)")
-    if not params["enabled"]:
+    if not params.enabled:
         # A copy, not a link: the store takes ownership of what the stage leaves in its output folder.
         passed = ctx.output("mesh.ply")
         shutil.copyfile(ctx.inputs["mesh_raw.ply"], passed)
@@ -34,17 +25,10 @@ def run_denoise(ctx: StageContext) -> dict[str, Path]:
     mesh = ctx.read("mesh_raw.ply", read_ply)
     if mesh.faces is None or not len(mesh.faces):
         raise StageError("mesh_raw.ply has no faces; denoise needs a triangle mesh")
-
-    def should_cancel() -> bool:
-        ctx.check_cancel()  # raises StageCanceled, which passes through the core untouched
-        return False
-
     try:
-        result = denoise_mesh(mesh.points, mesh.faces, progress=ctx.progress, should_cancel=should_cancel,
-                              **{k: params[k] for k in _CORE_OPTIONS})
-    except DenoiseCanceled as exc:
-        raise StageCanceled(str(exc)) from exc
-    except ValueError as exc:
+        result = denoise_mesh(mesh.points, mesh.faces, params, progress=ctx.progress, check_cancel=ctx.check_cancel)
+    except GeometryError as exc:
+        # The core's message describes the mesh; the user needs to know which file it means.
         raise StageError(f"cannot denoise mesh_raw.ply: {exc}") from exc
     ctx.check_cancel()
     out = {

@@ -7,20 +7,19 @@ from typing import Any
 
 import numpy as np
 
-from cam.fit.grid import orient_grid, patch_grid
+from cam.fit.grid import PatchGridError, orient_grid, patch_grid
 from cam.fit.patches import FitResult, fit_patches
-from cam.io import read_ply
+from cam.io import read_json, read_ply, write_json
 from cam.io.iges import write_iges
 from cam.io.quads import read_quad_obj
-from worker.context import StageContext, StageError, write_json
+from worker.context import StageContext, StageError
 
 
 def run_fit(ctx: StageContext) -> dict[str, Path]:
-    params = ctx.params["fit"]
-    tolerance_mm = fit_tolerance_mm(ctx.params)
+    params = ctx.params.effective("fit")  # tolerance_mm resolved from the scallop height when unset
     ctx.progress(0.02, "reading the quad mesh, patches and mesh")
     vertices, quads = ctx.read("quads.obj", read_quad_obj)
-    patches, sharp_edges = _read_patches(ctx.inputs["patches.json"])
+    patches, sharp_edges = _patches(ctx.read("patches.json", read_json))
     mesh = ctx.read("mesh.ply", read_ply)
     if mesh.faces is None or not len(mesh.faces):
         raise StageError("mesh.ply has no triangles to fit the surfaces to")
@@ -37,7 +36,7 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
             else:
                 grid = patch_grid(quads, p["faces"], corner=(p.get("corners") or [None])[0], rows=p.get("rows"),
                                   cols=p.get("cols"))
-        except ValueError as exc:
+        except PatchGridError as exc:
             raise StageError(f"patch {p['id']} is not a rectangular grid of quads ({exc}); "
                              "rerun segment or change segment parameters") from exc
         grids.append(grid)
@@ -46,24 +45,9 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     if not grids:
         raise StageError("segment left no valid patch to fit")
     ctx.check_cancel()
-
-    def progress(fraction: float, message: str) -> None:
-        ctx.check_cancel()
-        ctx.progress(0.05 + 0.85 * fraction, message)
-
-    try:
-        result = fit_patches(vertices, grids, mesh.points, mesh.faces, tolerance_mm=tolerance_mm,
-                             other_quads=quads[~in_patch], sharp_edges=sharp_edges,
-                             crease_angle_deg=float(params["crease_angle_deg"]),
-                             snap_radius=float(params["snap_radius_quads"]),
-                             knot_spacing=float(params["knot_spacing_quads"]),
-                             samples_per_face=int(params["samples_per_face"]),
-                             max_samples_per_quad=params["max_samples_per_quad"],
-                             smoothing_mm2=float(params["smoothing_mm2"]),
-                             normal_weight_mm=float(params["normal_weight_mm"]), iterations=int(params["iterations"]),
-                             max_refinements=int(params["max_refinements"]), on_progress=progress)
-    except ValueError as exc:
-        raise StageError(f"could not fit the patches: {exc}") from exc
+    result = fit_patches(vertices, grids, mesh.points, mesh.faces, params, other_quads=quads[~in_patch],
+                         sharp_edges=sharp_edges, progress=ctx.progress_between(0.05, 0.9),
+                         check_cancel=ctx.check_cancel)
     ctx.progress(0.92, "writing surfaces.json and surfaces.igs")
     shapes = [(g.shape[0] - 1, g.shape[1] - 1) for g in grids]
     document = surfaces_document(result, ids, skipped, shapes)
@@ -72,7 +56,7 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     over = [ids[k] for k in result.over_tolerance]
     # Where the worst point is next to a crease of the mesh, the layout is what to change, not the fit.
     at_crease = [ids[k] for k in result.at_crease]
-    if over and params["require_tolerance"]:
+    if over and params.require_tolerance:
         worst = max(result.patches, key=lambda p: p.max_error_mm)
         layout = (f"; {len(at_crease)} of them ({at_crease}) have it at a crease of the mesh that their patch "
                   "layout does not follow, which remesh's or segment's parameters change, not the fit's"
@@ -88,12 +72,6 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
         [f"{len(folded)} surfaces fold over themselves: {folded}"] if folded else [])
     ctx.progress(1.0, "; ".join(notes) or None)
     return out
-
-
-def fit_tolerance_mm(params: dict[str, Any]) -> float:
-    """fit.tolerance_mm, or a fifth of the scallop height when it is not set (the issue's default)."""
-    tol = params["fit"].get("tolerance_mm")
-    return float(tol) if tol is not None else float(params["toolpath"]["scallop_height_mm"]) / 5.0
 
 
 def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | None = None,
@@ -120,17 +98,17 @@ def surfaces_document(result: FitResult, ids: list[int], skipped: list[dict] | N
             "skipped": list(skipped or []), "surfaces": surfaces}
 
 
-def _read_patches(path: Path) -> tuple[list[dict[str, Any]], np.ndarray]:
-    """The patches of `patches.json` and its sharp edges (int (k, 2) quad-mesh vertex pairs)."""
-    import json
-
+def _patches(doc: Any) -> tuple[list[dict[str, Any]], np.ndarray]:
+    """The patches of the `patches.json` document and its sharp edges (int (k, 2) quad-mesh vertex pairs)."""
     try:
-        doc = json.loads(Path(path).read_text())
         patches = list(doc["patches"])
         for p in patches:
             p["id"], p["faces"] = int(p["id"]), [int(f) for f in p["faces"]]
+            if p.get("grid") is not None:
+                p["grid"] = np.asarray(p["grid"], dtype=np.int64)
         sharp = np.asarray(doc.get("sharp_edges") or [], dtype=np.int64).reshape(-1, 2)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
+        # The document as segment wrote it has these fields; anything else is a file the user can replace.
         raise StageError(f"patches.json is not what segment writes: {exc}") from exc
     if not patches:
         raise StageError("segment found no patches to fit")

@@ -11,7 +11,7 @@ import numpy as np
 from cam.gcode import GENERATOR, write_program
 from cam.io import read_ply, read_setups, read_surfaces, write_json
 from cam.io.atomic import atomic_write
-from cam.plan.plan import Plan, plan_job
+from cam.plan import Plan, plan_job
 from cam.spline.geometry import orientation_signs
 from worker.context import StageContext, StageError
 
@@ -21,10 +21,10 @@ def _r(x, d=5):
 
 
 def header(ctx: StageContext, plan: Plan, setup_id: int, patches: list[int], dialect: str) -> dict[str, str]:
-    tool = ctx.params["tool"]
+    tool = ctx.params.tool
     return {
         "cloud2cnc finishing program": f"job {ctx.job_id}, setup {setup_id}, patches {' '.join(map(str, patches))}",
-        "tool": f"ball end mill radius {plan.tool_radius_mm:.4f} mm, T{tool.get('tool_number', 1)}",
+        "tool": f"ball end mill radius {plan.tool_radius_mm:.4f} mm, T{tool.tool_number}",
         "target scallop": f"{plan.scallop_height_mm:.4f} mm",
         "certified scallop bound": f"{plan.certified_scallop_mm:.6f} mm",
         "budget split": f"scallop {plan.scallop_share_mm:.4f} mm + chord {plan.chord_tolerance_mm:.4f} mm",
@@ -36,7 +36,7 @@ def header(ctx: StageContext, plan: Plan, setup_id: int, patches: list[int], dia
 
 
 def run_plan(ctx: StageContext) -> dict[str, Path]:
-    tool, tp = ctx.params["tool"], ctx.params["toolpath"]
+    tool, tp = ctx.params.tool, ctx.params.toolpath
     ids, surfaces = ctx.read("surfaces.json", read_surfaces)
     if not surfaces:
         raise StageError("surfaces.json holds no surfaces: nothing to machine")
@@ -46,15 +46,9 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
     mesh = ctx.read("mesh.ply", read_ply) if "mesh.ply" in ctx.inputs else None
     signs = orientation_signs(surfaces, mesh_vertices=None if mesh is None else mesh.points,
                               mesh_faces=None if mesh is None else mesh.faces, up=setups[0].tool_axis_part)
-    try:
-        plan = plan_job(ids, surfaces, setups, tool_radius_mm=tool["radius_mm"], scallop_height_mm=tp["scallop_height_mm"],
-                        chord_fraction=tp["chord_fraction"], samples_per_line=tp["samples_per_line"],
-                        strategy=tp["strategy"], clearance_mm=tp["clearance_mm"],
-                        retract_mm=tp["retract_mm"], min_reach=tp["min_reach_fraction"], signs=signs,
-                        progress=ctx.progress, check_cancel=ctx.check_cancel)
-    except ValueError as exc:
-        raise StageError(f"cannot plan with these parameters: {exc}") from exc
-    dialect = tp["dialect"]
+    plan = plan_job(ids, surfaces, setups, tool, tp, signs=signs, progress=ctx.progress,
+                    check_cancel=ctx.check_cancel)
+    dialect = tp.dialect
     out: dict[str, Path] = {}
     rows = io.StringIO()
     writer = csv.writer(rows)
@@ -63,8 +57,8 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
     for k, sp in enumerate(plan.setups):
         patch_ids = list(dict.fromkeys(pp.patch for pp in sp.patches))  # a patch on several rectangles once
         text = write_program(sp.moves, dialect=dialect, header=header(ctx, plan, sp.setup.id, patch_ids, dialect),
-                             tool_number=tool["tool_number"], spindle_rpm=tool["spindle_rpm"],
-                             feed_mm_min=tool["feed_mm_min"], plunge_mm_min=tool["plunge_mm_min"],
+                             tool_number=tool.tool_number, spindle_rpm=tool.spindle_rpm,
+                             feed_mm_min=tool.feed_mm_min, plunge_mm_min=tool.plunge_mm_min,
                              program_number=k + 1)
         out[sp.program] = atomic_write(ctx.output(sp.program), [text.encode()])
         for pp in sp.patches:
@@ -78,7 +72,7 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
                             # verify holds the program to; the rest is left, with the reason.
                             "partial": [q for q in plan.partial if q["patch"] in patch_ids]})
     toolpath = {
-        "tool": {"shape": "ball", "radius_mm": plan.tool_radius_mm, "number": tool["tool_number"]},
+        "tool": {"shape": "ball", "radius_mm": plan.tool_radius_mm, "number": tool.tool_number},
         "scallop_height_mm": plan.scallop_height_mm, "scallop_share_mm": plan.scallop_share_mm,
         "chord_tolerance_mm": plan.chord_tolerance_mm, "strategy": plan.strategy,
         "certified_scallop_mm": plan.certified_scallop_mm, "unmachined": unmachined, "partial": plan.partial,

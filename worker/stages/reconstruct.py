@@ -5,36 +5,22 @@ from __future__ import annotations
 from pathlib import Path
 
 from cam.io import read_ply, write_ply_mesh
-from cam.reconstruct import ReconstructionCanceled, reconstruct_surface
-from worker.context import StageCanceled, StageContext, StageError, StageSkipped
-
-# JobParams.reconstruct fields passed to the core under the same names.
-_CORE_OPTIONS = ("preset", "iterations", "batch_size", "grid_cells", "width", "depth", "resolution",
-                 "learning_rate", "eikonal_weight", "normal_weight", "normals_k", "max_faces", "sharpen", "seed")
+from cam.reconstruct import reconstruct_surface
+from worker.context import StageContext, StageError, StageSkipped
 
 
 def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
     if "cloud.ply" not in ctx.inputs:
         raise StageSkipped("the upload is a mesh: it is passed on as mesh_raw.ply without reconstruction")
-    params = ctx.params.get("reconstruct", {})
-    options = {k: params[k] for k in _CORE_OPTIONS if k in params}
     ctx.progress(0.0, "reading the cloud")
     cloud = ctx.read("cloud.ply", read_ply)
     if cloud.faces is not None:
         raise StageError("cloud.ply holds a mesh, not a point cloud; mesh uploads skip reconstruct")
     threads = ctx.settings.get("blas_threads") or 1
-
-    def should_cancel() -> bool:
-        ctx.check_cancel()  # raises StageCanceled, which passes through the core untouched
-        return False
-
-    try:
-        result = reconstruct_surface(cloud.points, cloud.normals, threads=int(threads),
-                                     progress=ctx.progress, should_cancel=should_cancel, **options)
-    except ReconstructionCanceled as exc:
-        raise StageCanceled(str(exc)) from exc
-    except ValueError as exc:
-        raise StageError(str(exc)) from exc
+    # The core reports its own fractions of the stage (training 0.05..0.9, extraction after);
+    # a GeometryError (too few points, a flat cloud, ...) reaches the user as it is.
+    result = reconstruct_surface(cloud.points, cloud.normals, ctx.params.reconstruct, threads=int(threads),
+                                 progress=ctx.progress, check_cancel=ctx.check_cancel)
     ctx.check_cancel()
     report = result.report
     comments = [

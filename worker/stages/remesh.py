@@ -4,29 +4,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cam.io import read_ply
+from cam.io import read_ply, write_json
 from cam.io.quads import write_quad_obj
 from cam.remesh.quadriflow import remesh_quads
-from worker.context import StageContext, StageError, write_json
+from worker.context import StageContext, StageError
 
 
 def run_remesh(ctx: StageContext) -> dict[str, Path]:
-    params = ctx.params["remesh"]
     ctx.progress(0.02, "reading the mesh")
     mesh = ctx.read("mesh.ply", read_ply)
     if mesh.faces is None or len(mesh.faces) == 0:
         raise StageError("mesh.ply has no faces; the remesh stage needs a triangle mesh")
-    try:
-        result = remesh_quads(
-            mesh.points, mesh.faces, target_faces=int(params["target_faces"]), seed=int(params["seed"]),
-            attempts=int(params["attempts"]), candidates=int(params["candidates"]),
-            timeout_s=float(params["timeout_s"]),
-            preserve_sharp=bool(params["preserve_sharp"]), min_cost_flow=bool(params["min_cost_flow"]),
-            max_hausdorff_ratio=float(params["max_hausdorff_ratio"]), poll=ctx.check_cancel,
-            progress=lambda f, m: ctx.progress(0.05 + 0.85 * f, m),
-        )
-    except ValueError as exc:
-        raise StageError(str(exc)) from exc
+    # RemeshFailed (a GeometryError) carries the user's message as it is; the runner shows it.
+    result = remesh_quads(mesh.points, mesh.faces, ctx.params.remesh, progress=ctx.progress_between(0.05, 0.9),
+                          check_cancel=ctx.check_cancel)
     ctx.check_cancel()
     ctx.progress(0.95, "writing quads.obj")
     report = result.report

@@ -7,10 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from cam import GeometryError
+from cam.io import write_json
 from cam.io.quads import read_quad_obj, write_ply_quads_colored
 from cam.mesh.quads import face_normals
+from cam.params import SegmentParams
 from cam.segment import Segmentation, segment_quads
-from worker.context import StageContext, StageError, write_json
+from worker.context import StageContext, StageError
 
 BASE_COLOR = (90, 90, 90)
 INVALID_COLOR = (255, 0, 0)
@@ -37,8 +40,9 @@ def patch_colors(labels: np.ndarray, invalid: set[int]) -> np.ndarray:
     return colors
 
 
-def patches_document(seg: Segmentation, params: dict) -> dict:
-    """The `patches.json` body: DESIGN's fields plus grids, neighbours, boundary polylines and diagnostics."""
+def patches_document(seg: Segmentation, params: SegmentParams) -> dict:
+    """The `patches.json` body: DESIGN's fields plus grids, neighbours, boundary polylines and diagnostics,
+    and the segment parameters used."""
     patches = []
     for p in seg.patches:
         patches.append({
@@ -50,7 +54,7 @@ def patches_document(seg: Segmentation, params: dict) -> dict:
     return {
         "patches": patches, "base_faces": seg.base_faces.tolist(), "sharp_edges": seg.sharp_edges.tolist(),
         "clipping_edges": seg.cut_edges.tolist(), "extraordinary_points": seg.extraordinary.tolist(),
-        "stats": seg.stats, "params": params,
+        "stats": seg.stats, "params": params.model_dump(mode="json"),
     }
 
 
@@ -87,19 +91,13 @@ def _failure_message(seg: Segmentation) -> str:
 
 
 def run_segment(ctx: StageContext) -> dict[str, Path]:
-    params = ctx.params["segment"]
+    params = ctx.params.segment
     ctx.progress(0.02, "reading quads.obj")
     vertices, faces = ctx.read("quads.obj", read_quad_obj)
     try:
-        seg = segment_quads(
-            vertices, faces, sharp_angle_deg=float(params["sharp_angle_deg"]), remove_base=bool(params["remove_base"]),
-            mu=float(params["mu"]), gamma=float(params["gamma"]), sc=float(params["sc"]), nc=float(params["nc"]),
-            ac=float(params["ac"]), base_clusters=int(params["base_clusters"]),
-            min_fragment_edges=int(params["min_sharp_fragment_edges"]), method=str(params["method"]),
-            seed=int(params["seed"]), progress=lambda f, m: ctx.progress(0.05 + 0.85 * f, m),
-            check_cancel=ctx.check_cancel,
-        )
-    except ValueError as exc:
+        seg = segment_quads(vertices, faces, params, progress=ctx.progress_between(0.05, 0.9),
+                            check_cancel=ctx.check_cancel)
+    except GeometryError as exc:  # the message names the mesh's defect; the user also needs to know which file
         raise StageError(f"cannot segment quads.obj: {exc}") from exc
     ctx.progress(0.92, "writing")
     invalid = {p.id for p in seg.invalid}

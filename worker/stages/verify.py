@@ -33,9 +33,9 @@ def write_heat_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, colors: 
 
 
 def run_verify(ctx: StageContext) -> dict[str, Path]:
-    r = float(ctx.params["tool"]["radius_mm"])
-    tp = ctx.params["toolpath"]
-    target = float(tp["scallop_height_mm"])
+    r = float(ctx.params.tool.radius_mm)
+    tp = ctx.params.toolpath
+    target = float(tp.scallop_height_mm)
     ids, surfaces = ctx.read("surfaces.json", read_surfaces)
     doc, setups = ctx.read("setup.json", read_setups)
     if not surfaces or not setups:
@@ -64,7 +64,7 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
             raise StageError(str(exc)) from exc
         ctx.progress(0.05 + 0.9 * k / len(setups), f"measuring {name}")
         m = measure_program(program, machined, part, tool_radius_mm=r, target_mm=target,
-                            samples_per_interval=tp["verify_samples_per_interval"],
+                            samples_per_interval=tp.verify_samples_per_interval,
                             check_cancel=ctx.check_cancel)
         reports.append({"setup": setup.id, "program": name, "certified_scallop_mm": certified, **m.report})
         verts.append((m.vertices - setup.translation) @ setup.rotation)  # back to the part frame

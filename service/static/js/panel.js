@@ -297,12 +297,11 @@ export class ViewerPanel {
       parsing();
       const geo = await parse("surfaces", buf, { res: 24 });
       if (!geo.surfaceCount) throw new Error(geo.errors[0] || "no surface could be drawn");
-      // fit.tolerance_mm null means a fifth of the scallop height (what the fit stage used).
-      const scallop = this.job.params?.toolpath?.scallop_height_mm;
-      const tol = this.job.params?.fit?.tolerance_mm ?? (scallop !== undefined ? scallop / 5 : undefined);
+      // The tolerance the fit stage used, as it wrote it (JobParams derives it when fit.tolerance_mm is unset).
+      const tol = geo.tolerance;
       return { object: m.surfacesLayer(geo),
         info: `${geo.surfaceCount} B-spline surfaces${geo.maxError !== null ? `, max fit error ${formatNumber(geo.maxError)} mm` : ""}`
-          + `${tol !== undefined ? ` (tolerance ${tol} mm)` : ""}${geo.errors.length ? `; ${geo.errors.length} not drawn: ${geo.errors[0]}` : ""}` };
+          + `${tol !== null ? ` (tolerance ${tol} mm)` : ""}${geo.errors.length ? `; ${geo.errors.length} not drawn: ${geo.errors[0]}` : ""}` };
     }
     if (key === "toolpaths") {
       const toolpath = await this._json("toolpath.json");

@@ -481,5 +481,6 @@ export function surfacesGeometry(doc, res) {
   }
   const fitErrors = list.map((s) => s.max_error_mm).filter((e) => typeof e === "number");
   return { positions, tris, vertexPatch, surfaceCount: parts.length, errors,
-    maxError: fitErrors.length ? Math.max(...fitErrors) : null };
+    maxError: fitErrors.length ? Math.max(...fitErrors) : null,
+    tolerance: typeof doc?.tolerance_mm === "number" ? doc.tolerance_mm : null };
 }
