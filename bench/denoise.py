@@ -35,7 +35,7 @@ from machine_info import cpu_model  # bench/ is on the path when a script runs
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from cam.denoise.mesh_tgv import PARAMETER_BOUNDS, denoise_mesh
+from cam.denoise import denoise_mesh
 from cam.params import DenoiseParams
 
 AUTHORS = {  # from ../shared/data/README.md: (filtered normals, normals of their result mesh)
@@ -192,8 +192,7 @@ def main() -> int:
             tiles.append([render(x, f, view=view, up=up) for x in (vn, ours.vertices, va)])
     load_after = os.getloadavg()
 
-    p = PARAMETER_BOUNDS
-    defaults = ", ".join(f"{k}={v[0]}" for k, v in p.items())
+    defaults = ", ".join(f"{k}={v}" for k, v in DenoiseParams().model_dump(exclude={"enabled"}).items())
     lines = [
         "# Denoising benchmark (MeshTGV, `cam.denoise.mesh_tgv`)",
         "",

@@ -1,29 +1,19 @@
 """Mesh denoising for the ``denoise`` stage: MeshTGV normal filtering, then the vertex update.
 
-``denoise_mesh`` is the public entry. The normal filtering lives in :mod:`cam.denoise.tgv`; this
-module validates the input, makes it scale and translation free (lengths in units of the mean edge
-length), runs the filter, moves the vertices to follow the filtered normals and maps the result back
-to the input's units.
+``denoise_mesh`` is the public entry. The normal filtering lives in :mod:`cam.denoise.tgv`, the
+vertex update in :mod:`cam.denoise.vertices`; this module checks the input arrays, makes the mesh
+scale and translation free (lengths in units of the mean edge length), adapts the weights to the
+noise it measures, runs the filter and the update, and maps the result back to the input's units.
 
-Vertex update (the scheme the MeshTGV paper uses, after Sun et al. 2007): iterated
-    x_i <- x_i + 1/|F_i| sum_{f in F_i} n_f (n_f . (c_f - x_i)),
-with F_i the faces around vertex i, n_f the filtered normals and c_f the current centroids.
-That update moves vertices only along normals, so a triangle that the noise folded over (its
-orientation reversed in the tangent plane, common for small faces under noise with a tangential
-component) is left folded: its plane is right but its normal points the wrong way. ``flip_repair_rounds``
-rounds of a local repair follow: the vertices of every face whose normal opposes its filtered normal
-are moved to the average of their neighbours within the tangent plane (normal motion is left to the
-update), then a few more update iterations run. Set it to 0 for the paper's update alone.
-
-Bad input: non-finite coordinates, wrong shapes, out-of-range indices, parameters out of range ->
-ValueError (a caller's bug: the pipeline's readers and `DenoiseParams` rule them out); no face of
-non-zero area -> :class:`~cam.GeometryError` (the user's mesh is degenerate). Zero-area faces
-(repeated vertex indices or an area below 1e-12 mean-edge-lengths squared) are handled: they are
-left out of the filtering and of the vertex update, and their reported normal is the normalised
-mean of the filtered normals of the faces sharing a vertex with them (zero when they have none).
-Edges with more than two faces (non-manifold) are handled by not coupling the faces across them
-(they act like boundary edges); neighbours with inconsistent orientation are compared with a sign
-flip. All counts are in the report.
+Bad input: non-finite coordinates, wrong shapes, out-of-range indices -> ValueError (a caller's bug:
+the pipeline's readers rule them out; the parameters are those of a `DenoiseParams`, validated when
+it was made); no face of non-zero area -> :class:`~cam.GeometryError` (the user's mesh is
+degenerate). Zero-area faces (repeated vertex indices or an area below 1e-12 mean-edge-lengths
+squared) are handled: they are left out of the filtering and of the vertex update, and their
+reported normal is the normalised mean of the filtered normals of the faces sharing a vertex with
+them (zero when they have none). Edges with more than two faces (non-manifold) are handled by not
+coupling the faces across them (they act like boundary edges); neighbours with inconsistent
+orientation are compared with a sign flip. All counts are in the report.
 """
 
 from __future__ import annotations
@@ -32,39 +22,26 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from cam import CheckCancel, GeometryError, Progress
-from cam.denoise.tgv import face_topology, tgv_filter_normals
+from cam.denoise.tgv import FaceTopology, TGVResult, face_topology, tgv_filter_normals
+from cam.denoise.vertices import fill_degenerate_normals, unit_rows, update_vertices
 from cam.params import DenoiseParams
 
-__all__ = ["PARAMETER_BOUNDS", "DenoiseResult", "denoise_mesh"]
+__all__ = ["DenoiseResult", "denoise_mesh"]
 
 
 @dataclass(frozen=True)
 class DenoiseResult:
+    """A denoised mesh: same faces, moved vertices."""
+
     vertices: np.ndarray  # (n, 3) float64, input units
     face_normals: np.ndarray  # (m, 3) float64, filtered unit normals
     iterations: int  # outer iterations of the normal filter
     report: dict = field(default_factory=dict)  # plain JSON types only
 
 
-# name: (default, lower, upper, lower_inclusive); upper is inclusive. Same numbers as DenoiseParams
-# (checked again here for a group built without validation, e.g. by model_construct).
-PARAMETER_BOUNDS: dict[str, tuple[float, float, float, bool]] = {
-    "alpha0": (0.15, 0.0, 100.0, False),
-    "alpha1": (0.4, 0.0, 100.0, False),
-    "penalty0": (2.0, 0.0, 1000.0, False),
-    "penalty1": (2.0, 0.0, 1000.0, False),
-    "vertex_iterations": (20, 0, 1000, True),
-    "flip_repair_rounds": (5, 0, 100, True),
-    "max_iterations": (100, 1, 10000, True),
-    "tolerance": (1e-5, 0.0, 1.0, True),
-    "noise_reference_deg": (15.0, 0.0, 180.0, True),
-}
-
 _DEGENERATE_REL_AREA = 1e-12  # faces with area below this (in mean edge lengths squared) are degenerate
-_REPAIR_UPDATE_ITERATIONS = 5  # vertex-update iterations after each flip-repair round
 
 
 def denoise_mesh(
@@ -77,162 +54,85 @@ def denoise_mesh(
 ) -> DenoiseResult:
     """Denoise a triangle mesh with MeshTGV normal filtering and the iterative vertex update.
 
-    vertices: (n, 3) real coordinates, any unit; faces: (m, 3) integer indices into them.
-    Returns vertices float64 (n, 3) in the input's units and frame, and the filtered unit face
-    normals float64 (m, 3).
-
     Every parameter of ``params`` is dimensionless: the mesh is first expressed in units of its
     mean edge length, so the result does not depend on the input's scale, position or
     orientation. ``params.enabled`` is not read here (the stage skips a disabled denoise).
 
-    alpha0: weight of the second-order TGV term (jumps of the auxiliary gradient field across
+    Parameters
+    ----------
+    vertices : ndarray, shape (n >= 3, 3), real dtype
+        Finite coordinates, any unit.
+    faces : ndarray, shape (m >= 1, 3), integer dtype
+        Triangles, indices into ``vertices``.
+    params : DenoiseParams
+        alpha0: weight of the second-order TGV term (jumps of the auxiliary gradient field across
         edges, gradients per mean edge length, each jump weighted by its edge length in mean edge
         lengths). Larger: the auxiliary field is dearer and the filter behaves more like plain TV
         (crisper creases, curved parts drift towards facets); smaller: ramps replace creases.
-    alpha1: weight of the first-order TGV term (jump of the normal across each edge, minus the jump
-        the auxiliary field predicts, weighted by edge length in mean edge lengths), relative to the
-        area-weighted fidelity (areas in mean edge lengths squared). Larger: stronger denoising.
-    penalty0, penalty1: augmented-Lagrangian penalties of the two split variables (same units as
-        alpha0, alpha1). They fix the linear systems, which are factored once.
-    vertex_iterations: iterations of the vertex update.
-    flip_repair_rounds: rounds of the folded-face repair after the update (0: paper's update only).
-    max_iterations: cap on the outer iterations of the normal filter.
-    tolerance: stop when |N_k - N_{k-1}| / |N_{k-1}| (Frobenius norms) falls below it.
-    noise_reference_deg: noise adaptation. The median dihedral angle over the interior edges of the
-        input measures its noise (clean CAD meshes: under 1 deg; the benchmark meshes: about 20 deg).
-        alpha0 and alpha1 are multiplied by min(1, median / noise_reference_deg), so noisy input gets
-        the full weights and clean input is left (nearly) alone. 0 switches the adaptation off.
-    progress: ``progress(fraction, message)``, called once per outer iteration (fractions rise
-        through [0, 0.9)) and once at the end with 1.0.
-    check_cancel: called once before the filter, once per outer iteration and once per vertex
-        iteration; it stops the work by raising (the exception passes through untouched).
+        alpha1: weight of the first-order TGV term (jump of the normal across each edge, minus the
+        jump the auxiliary field predicts, weighted by edge length in mean edge lengths), relative to
+        the area-weighted fidelity (areas in mean edge lengths squared). Larger: stronger denoising.
+        penalty0, penalty1: augmented-Lagrangian penalties of the two split variables (same units
+        as alpha0, alpha1). They fix the linear systems, which are factored once.
+        vertex_iterations: iterations of the vertex update.
+        flip_repair_rounds: rounds of the folded-face repair after the update (0: paper's update only).
+        max_iterations: cap on the outer iterations of the normal filter.
+        tolerance: stop when |N_k - N_{k-1}| / |N_{k-1}| (Frobenius norms) falls below it.
+        noise_reference_deg: noise adaptation. The median dihedral angle over the interior edges of
+        the input measures its noise (clean CAD meshes: under 1 deg; the benchmark meshes: about
+        20 deg). alpha0 and alpha1 are multiplied by min(1, median / noise_reference_deg), so noisy
+        input gets the full weights and clean input is left (nearly) alone. 0 switches the
+        adaptation off.
+    progress : callable, optional
+        ``progress(fraction, message)``, called once per outer iteration (fractions rise through
+        [0, 0.9)) and once at the end with 1.0.
+    check_cancel : callable, optional
+        Called once before the filter, once per outer iteration and once per vertex iteration; it
+        stops the work by raising (the exception passes through untouched).
 
-    Raises :class:`~cam.GeometryError` when no face has a non-zero area; ``ValueError`` for
-    arrays or parameters a caller got wrong.
+    Returns
+    -------
+    DenoiseResult
+        ``vertices`` float64 (n, 3) in the input's units and frame, ``face_normals`` float64
+        (m, 3) filtered unit normals, the filter's ``iterations`` and a JSON-ready ``report``
+        (iterations, timings in s, parameters, scaling, mesh counts, folded faces, warnings).
+
+    Raises
+    ------
+    GeometryError
+        When no face has a non-zero area.
+    ValueError
+        For arrays of the wrong shape or dtype, non-finite coordinates or indices out of range.
     """
     t0 = time.perf_counter()
-    options = _check_params({name: getattr(params, name) for name in PARAMETER_BOUNDS})
     check_cancel = check_cancel or _no_cancel
-
     v_in, f_in = _check_mesh(vertices, faces)
-    n, m = len(v_in), len(f_in)
     check_cancel()
-
-    # --- degenerate faces and the length unit ---------------------------------------------
-    # a first length unit from the faces with three distinct vertices decides which faces have
-    # zero area; the unit and the centre used from then on come from the valid faces alone, so
-    # adding or removing degenerate faces does not change the result on the others
-    repeated = (f_in[:, 0] == f_in[:, 1]) | (f_in[:, 1] == f_in[:, 2]) | (f_in[:, 2] == f_in[:, 0])
-    ell0 = _mean_edge_length(v_in, f_in[~repeated])
-    if not np.isfinite(ell0) or ell0 <= 0.0:
-        raise GeometryError(f"all {m} faces are degenerate (no face has an edge of non-zero length)")
-    cross = np.cross(v_in[f_in[:, 1]] - v_in[f_in[:, 0]], v_in[f_in[:, 2]] - v_in[f_in[:, 0]])
-    area0 = 0.5 * np.linalg.norm(cross, axis=1) / (ell0 * ell0)
-    valid = ~repeated & (area0 > _DEGENERATE_REL_AREA)
-    n_degenerate = int(m - valid.sum())
-    if not valid.any():
-        raise GeometryError(f"all {m} faces are degenerate (zero area)")
-    vf = f_in[valid]
-    ell = _mean_edge_length(v_in, vf)
-    used = np.unique(vf)
-    center = v_in[used].mean(axis=0)
-    x = (v_in - center) / ell
-
-    # --- noise adaptation -------------------------------------------------------------------------
-    topo = face_topology(vf, n)
-    median_dihedral = _median_dihedral_deg(x, vf, topo)
-    if options["noise_reference_deg"] > 0:
-        weight_scale = min(1.0, median_dihedral / options["noise_reference_deg"])
-    else:
-        weight_scale = 1.0
-    alpha0_used = options["alpha0"] * weight_scale
-    alpha1_used = options["alpha1"] * weight_scale
-
-    # --- normal filtering ---------------------------------------------------------------------
-
-    def on_iteration(k: int, rel: float) -> None:
-        if progress is not None:
-            progress(0.9 * k / (options["max_iterations"] + 1),
-                     f"normal filtering: iteration {k}, relative change {rel:.3g}")
-
-    tgv = tgv_filter_normals(
-        x, vf, topo,
-        alpha0=alpha0_used, alpha1=alpha1_used,
-        r0=options["penalty0"], r1=options["penalty1"],
-        max_iterations=options["max_iterations"], tolerance=options["tolerance"],
-        on_iteration=on_iteration, check_cancel=check_cancel,
-    )
-    normals_valid = tgv.normals
-
-    # --- vertex update --------------------------------------------------------------------------
+    frame = _normalise(v_in, f_in)
+    topo = face_topology(frame.faces, len(v_in))
+    median_dihedral = _median_dihedral_deg(frame.x, frame.faces, topo)
+    weight_scale = _noise_weight_scale(median_dihedral, params.noise_reference_deg)
+    tgv = _filter_normals(frame, topo, params, weight_scale, progress=progress, check_cancel=check_cancel)
     t_vu = time.perf_counter()
-    x_new, flips_before, flips_after = _update_vertices(
-        x, vf, normals_valid, options["vertex_iterations"], options["flip_repair_rounds"],
-        check_cancel=check_cancel,
-    )
+    x_new, flips_before, flips_after = update_vertices(frame.x, frame.faces, tgv.normals, params.vertex_iterations,
+                                                       params.flip_repair_rounds, check_cancel=check_cancel)
     t_vu_end = time.perf_counter()
-
-    face_normals = np.zeros((m, 3))
-    face_normals[valid] = normals_valid
-    no_normal = 0
-    if n_degenerate:
-        no_normal = _fill_degenerate_normals(face_normals, f_in, valid, n)
-
-    out = v_in.copy()
-    moved = np.zeros(n, dtype=bool)
-    moved[np.unique(vf)] = True
-    out[moved] = x_new[moved] * ell + center
-    if not np.all(np.isfinite(out)):  # cannot happen for valid input; never hand back garbage
-        raise ValueError("denoising produced non-finite coordinates")
-
-    warnings = []
-    if not tgv.converged:
-        warnings.append(f"normal filtering stopped at max_iterations={options['max_iterations']} with "
-                        f"relative change {tgv.relative_change:.3g} (tolerance {options['tolerance']:g})")
-    sliver = _sliver_fraction(x, vf)
-    if sliver > 0.1:
-        warnings.append(f"{100 * sliver:.0f}% of the faces are slivers (longest edge > 10x the height "
-                        "on it); the filter over-smooths such meshes, remesh first or lower alpha1")
-    if flips_after:
-        warnings.append(f"{flips_after} faces remain folded over (normal against the filtered one)")
+    face_normals, no_normal = _all_face_normals(tgv.normals, f_in, frame)
+    out = _to_input_frame(x_new, v_in, frame)
+    sliver = _sliver_fraction(frame.x, frame.faces)
+    warnings = _warnings(tgv, params, sliver, flips_after)
     if progress is not None:
         progress(1.0, "denoising done")
-    t_end = time.perf_counter()
+    timings = _timings(tgv, vertex_update=t_vu_end - t_vu, total=time.perf_counter() - t0)
     report = {
         "iterations": int(tgv.iterations),
         "converged": bool(tgv.converged),
         "final_relative_change": float(tgv.relative_change),
-        "time_s": {
-            "setup": round(tgv.setup_seconds, 6),
-            "factorization": round(tgv.factor_seconds, 6),
-            "normal_iterations": round(tgv.iterate_seconds, 6),
-            "vertex_update": round(t_vu_end - t_vu, 6),
-            "total": round(t_end - t0, 6),
-        },
+        "time_s": timings,
         "parameters": {k: (int(v) if isinstance(v, (int, np.integer)) else float(v))
-                       for k, v in options.items()},
-        "scaling": {
-            "length_unit": "mean edge length",
-            "mean_edge_length": float(ell),
-            "center": [float(c) for c in center],
-            "median_dihedral_deg": float(median_dihedral),
-            "noise_weight_scale": float(weight_scale),
-            "alpha0_used": float(alpha0_used),
-            "alpha1_used": float(alpha1_used),
-            # the same energy written in the input's units (areas and lengths not rescaled)
-            "alpha1_used_input_units": float(alpha1_used * ell),
-            "alpha0_used_input_units": float(alpha0_used * ell * ell),
-        },
-        "mesh": {
-            "vertices": int(n),
-            "faces": int(m),
-            "degenerate_faces": n_degenerate,
-            "degenerate_faces_without_normal": int(no_normal),
-            "interior_edges": int(tgv.n_edges),
-            "boundary_edges": int(topo.n_boundary_edges),
-            "nonmanifold_edges": int(topo.n_nonmanifold_edges),
-            "inconsistently_oriented_edges": int(topo.n_flipped_edges),
-        },
+                       for k, v in params.model_dump(exclude={"enabled"}).items()},
+        "scaling": _scaling_report(frame, params, median_dihedral, weight_scale),
+        "mesh": _mesh_report(frame, topo, tgv, no_normal),
         "folded_faces": {"after_update": int(flips_before), "after_repair": int(flips_after)},
         "sliver_face_fraction": float(sliver),
         "warnings": warnings,
@@ -241,29 +141,15 @@ def denoise_mesh(
                          report=report)
 
 
-# ------------------------------------------------------------------------------------------------
-def _no_cancel() -> None:
-    pass
+@dataclass(frozen=True)
+class _Frame:
+    """The valid faces and the scale- and translation-free positions the filter works on."""
 
-
-def _check_params(params: dict) -> dict:
-    out = {}
-    for name, value in params.items():
-        default, lo, hi, lo_incl = PARAMETER_BOUNDS[name]
-        integral = isinstance(default, int)
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-            # ValueError, not TypeError: the stage contract is "bad input -> ValueError"
-            raise ValueError(f"{name} must be a number, got {value!r}")  # noqa: TRY004
-        if not np.isfinite(float(value)):
-            raise ValueError(f"{name} must be finite, got {value!r}")
-        if integral and float(value) != int(value):
-            raise ValueError(f"{name} must be an integer, got {value!r}")
-        v = int(value) if integral else float(value)
-        if v > hi or v < lo or (v == lo and not lo_incl):
-            bound = f"{'[' if lo_incl else '('}{lo}, {hi}]"
-            raise ValueError(f"{name}={value!r} is outside {bound}")
-        out[name] = v
-    return out
+    valid: np.ndarray  # (m,) bool, faces of non-zero area
+    faces: np.ndarray  # (k, 3) int64, the valid faces
+    x: np.ndarray  # (n, 3) float64, (vertices - center) / ell
+    ell: float  # mean edge length of the valid faces, input units
+    center: np.ndarray  # (3,) mean of the vertices of valid faces, input units
 
 
 def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
@@ -289,6 +175,122 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
+def _normalise(v_in: np.ndarray, f_in: np.ndarray) -> _Frame:
+    # A first length unit from the faces with three distinct vertices decides which faces have
+    # zero area; the unit and the centre used from then on come from the valid faces alone, so
+    # adding or removing degenerate faces does not change the result on the others.
+    m = len(f_in)
+    repeated = (f_in[:, 0] == f_in[:, 1]) | (f_in[:, 1] == f_in[:, 2]) | (f_in[:, 2] == f_in[:, 0])
+    ell0 = _mean_edge_length(v_in, f_in[~repeated])
+    if not np.isfinite(ell0) or ell0 <= 0.0:
+        raise GeometryError(f"all {m} faces are degenerate (no face has an edge of non-zero length)")
+    cross = np.cross(v_in[f_in[:, 1]] - v_in[f_in[:, 0]], v_in[f_in[:, 2]] - v_in[f_in[:, 0]])
+    area0 = 0.5 * np.linalg.norm(cross, axis=1) / (ell0 * ell0)
+    valid = ~repeated & (area0 > _DEGENERATE_REL_AREA)
+    if not valid.any():
+        raise GeometryError(f"all {m} faces are degenerate (zero area)")
+    vf = f_in[valid]
+    ell = _mean_edge_length(v_in, vf)
+    center = v_in[np.unique(vf)].mean(axis=0)
+    return _Frame(valid=valid, faces=vf, x=(v_in - center) / ell, ell=ell, center=center)
+
+
+def _noise_weight_scale(median_dihedral_deg: float, noise_reference_deg: float) -> float:
+    if noise_reference_deg > 0:
+        return min(1.0, median_dihedral_deg / noise_reference_deg)
+    return 1.0
+
+
+def _filter_normals(frame: _Frame, topo: FaceTopology, params: DenoiseParams, weight_scale: float, *,
+                    progress: Progress | None, check_cancel: CheckCancel) -> TGVResult:
+    def on_iteration(k: int, rel: float) -> None:
+        if progress is not None:
+            progress(0.9 * k / (params.max_iterations + 1),
+                     f"normal filtering: iteration {k}, relative change {rel:.3g}")
+
+    return tgv_filter_normals(
+        frame.x, frame.faces, topo,
+        alpha0=params.alpha0 * weight_scale, alpha1=params.alpha1 * weight_scale,
+        r0=params.penalty0, r1=params.penalty1,
+        max_iterations=params.max_iterations, tolerance=params.tolerance,
+        on_iteration=on_iteration, check_cancel=check_cancel,
+    )
+
+
+def _all_face_normals(normals_valid: np.ndarray, f_in: np.ndarray, frame: _Frame) -> tuple[np.ndarray, int]:
+    """Normals of every input face, and how many degenerate faces got none."""
+    face_normals = np.zeros((len(f_in), 3))
+    face_normals[frame.valid] = normals_valid
+    if frame.valid.all():
+        return face_normals, 0
+    return face_normals, fill_degenerate_normals(face_normals, f_in, frame.valid, frame.x.shape[0])
+
+
+def _to_input_frame(x_new: np.ndarray, v_in: np.ndarray, frame: _Frame) -> np.ndarray:
+    # Vertices no valid face uses keep their input position bit for bit.
+    out = v_in.copy()
+    moved = np.zeros(len(v_in), dtype=bool)
+    moved[np.unique(frame.faces)] = True
+    out[moved] = x_new[moved] * frame.ell + frame.center
+    if not np.all(np.isfinite(out)):  # cannot happen for valid input; never hand back garbage
+        raise ValueError("denoising produced non-finite coordinates")
+    return out
+
+
+def _warnings(tgv: TGVResult, params: DenoiseParams, sliver: float, flips_after: int) -> list[str]:
+    warnings = []
+    if not tgv.converged:
+        warnings.append(f"normal filtering stopped at max_iterations={params.max_iterations} with "
+                        f"relative change {tgv.relative_change:.3g} (tolerance {params.tolerance:g})")
+    if sliver > 0.1:
+        warnings.append(f"{100 * sliver:.0f}% of the faces are slivers (longest edge > 10x the height "
+                        "on it); the filter over-smooths such meshes, remesh first or lower alpha1")
+    if flips_after:
+        warnings.append(f"{flips_after} faces remain folded over (normal against the filtered one)")
+    return warnings
+
+
+def _timings(tgv: TGVResult, *, vertex_update: float, total: float) -> dict[str, float]:
+    return {
+        "setup": round(tgv.setup_seconds, 6),
+        "factorization": round(tgv.factor_seconds, 6),
+        "normal_iterations": round(tgv.iterate_seconds, 6),
+        "vertex_update": round(vertex_update, 6),
+        "total": round(total, 6),
+    }
+
+
+def _scaling_report(frame: _Frame, params: DenoiseParams, median_dihedral: float, weight_scale: float) -> dict:
+    alpha0_used = params.alpha0 * weight_scale
+    alpha1_used = params.alpha1 * weight_scale
+    return {
+        "length_unit": "mean edge length",
+        "mean_edge_length": float(frame.ell),
+        "center": [float(c) for c in frame.center],
+        "median_dihedral_deg": float(median_dihedral),
+        "noise_weight_scale": float(weight_scale),
+        "alpha0_used": float(alpha0_used),
+        "alpha1_used": float(alpha1_used),
+        # the same energy written in the input's units (areas and lengths not rescaled)
+        "alpha1_used_input_units": float(alpha1_used * frame.ell),
+        "alpha0_used_input_units": float(alpha0_used * frame.ell * frame.ell),
+    }
+
+
+def _mesh_report(frame: _Frame, topo: FaceTopology, tgv: TGVResult, no_normal: int) -> dict:
+    m = len(frame.valid)
+    return {
+        "vertices": len(frame.x),
+        "faces": int(m),
+        "degenerate_faces": int(m - frame.valid.sum()),
+        "degenerate_faces_without_normal": int(no_normal),
+        "interior_edges": int(tgv.n_edges),
+        "boundary_edges": int(topo.n_boundary_edges),
+        "nonmanifold_edges": int(topo.n_nonmanifold_edges),
+        "inconsistently_oriented_edges": int(topo.n_flipped_edges),
+    }
+
+
 def _mean_edge_length(v: np.ndarray, f: np.ndarray) -> float:
     if len(f) == 0:
         return 0.0
@@ -299,11 +301,11 @@ def _mean_edge_length(v: np.ndarray, f: np.ndarray) -> float:
     return float(length.mean()) if len(length) else 0.0
 
 
-def _median_dihedral_deg(x: np.ndarray, f: np.ndarray, topo) -> float:
+def _median_dihedral_deg(x: np.ndarray, f: np.ndarray, topo: FaceTopology) -> float:
     """Median angle between the normals of the two faces on each interior edge, in degrees."""
     if len(topo.edge_faces) == 0:
         return 0.0
-    n = _unit(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]))
+    n = unit_rows(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]))
     a, b = topo.edge_faces[:, 0], topo.edge_faces[:, 1]
     cosang = np.einsum("ij,ij->i", n[a], n[b]) * topo.edge_sign
     return float(np.degrees(np.arccos(np.clip(np.median(cosang), -1.0, 1.0))))
@@ -318,72 +320,5 @@ def _sliver_fraction(x: np.ndarray, f: np.ndarray) -> float:
     return float(np.mean(longest2 > 10.0 * dbl_area)) if len(f) else 0.0
 
 
-def _unit(a: np.ndarray) -> np.ndarray:
-    nrm = np.linalg.norm(a, axis=1)
-    out = np.zeros_like(a)
-    ok = nrm > 0
-    out[ok] = a[ok] / nrm[ok, None]
-    return out
-
-
-def _update_vertices(x, f, normals, iterations, repair_rounds, *, check_cancel: CheckCancel | None = None):
-    """Vertex update (Sun et al. scheme) plus the folded-face repair; mean-edge units."""
-    n = len(x)
-    m = len(f)
-    # incidence: vertex-by-face, for sums over the faces around each vertex
-    inc = sp.csr_matrix((np.ones(3 * m), (f.ravel(), np.repeat(np.arange(m), 3))), shape=(n, m))
-    count = np.asarray(inc.sum(axis=1)).ravel()
-    inv_count = np.where(count > 0, 1.0 / np.maximum(count, 1), 0.0)
-    # sum_f n_f n_f^T c_f and sum_f n_f n_f^T per vertex are what the update needs:
-    # x_i += 1/|F_i| (sum_f n_f n_f^T c_f - (sum_f n_f n_f^T) x_i)
-    nnT = np.einsum("fi,fj->fij", normals, normals).reshape(m, 9)
-    Msum = (inc @ nnT).reshape(n, 3, 3)
-
-    def step(x):
-        c = x[f].mean(axis=1)
-        a = inc @ (normals * np.einsum("fi,fi->f", normals, c)[:, None])
-        b = np.einsum("nij,nj->ni", Msum, x)
-        return x + (a - b) * inv_count[:, None]
-
-    check_cancel = check_cancel or _no_cancel
-    x = x.copy()
-    for _ in range(iterations):
-        check_cancel()
-        x = step(x)
-
-    def folded(x):
-        fn = np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
-        return np.einsum("fi,fi->f", fn, normals) < 0
-
-    bad = folded(x)
-    flips_before = int(bad.sum())
-    if repair_rounds > 0 and bad.any():
-        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        adj = sp.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-        adj = ((adj + adj.T) > 0).astype(np.float64).tocsr()
-        deg = np.asarray(adj.sum(axis=1)).ravel()
-        vnormal = _unit(inc @ normals)
-        for _ in range(repair_rounds):
-            if not bad.any():
-                break
-            check_cancel()
-            verts = np.unique(f[bad])
-            lap = adj[verts] @ x / np.maximum(deg[verts], 1)[:, None] - x[verts]
-            nv = vnormal[verts]
-            x[verts] += lap - np.einsum("vi,vi->v", lap, nv)[:, None] * nv
-            for _ in range(_REPAIR_UPDATE_ITERATIONS):
-                x = step(x)
-            bad = folded(x)
-    return x, flips_before, int(bad.sum())
-
-
-def _fill_degenerate_normals(face_normals, faces, valid, n) -> int:
-    """Normals for degenerate faces: mean of the valid faces' normals around their vertices."""
-    vf = faces[valid]
-    vsum = np.zeros((n, 3))
-    for k in range(3):
-        np.add.at(vsum, vf[:, k], face_normals[valid])
-    bad = np.flatnonzero(~valid)
-    s = vsum[faces[bad]].sum(axis=1)
-    face_normals[bad] = _unit(s)
-    return int(np.sum(np.linalg.norm(s, axis=1) == 0))
+def _no_cancel() -> None:
+    pass

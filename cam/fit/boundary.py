@@ -32,13 +32,40 @@ class PatchLayoutError(GeometryError):
 
 
 def side_vertices(grid: np.ndarray, name: str) -> np.ndarray:
-    """Vertex ids along side `name` of a grid, in increasing side parameter: int64 (m + 1,)."""
+    """Vertex ids along one side of a grid, in increasing side parameter.
+
+    Parameters
+    ----------
+    grid : ndarray, shape (R + 1, C + 1), int
+        A patch's vertex ids.
+    name : {"u0", "u1", "v0", "v1"}
+        The side (see the module docstring).
+
+    Returns
+    -------
+    ndarray, shape (C + 1,) for "u0", "u1", (R + 1,) for "v0", "v1", int64
+    """
     g = np.asarray(grid)
     return {"u0": g[0, :], "u1": g[-1, :], "v0": g[:, 0], "v1": g[:, -1]}[name].astype(np.int64)
 
 
 def side_params(name: str, t: np.ndarray, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray]:
-    """Surface parameters (u, v) in grid-index units of side parameter `t` on side `name`."""
+    """Surface parameters of points along a side.
+
+    Parameters
+    ----------
+    name : {"u0", "u1", "v0", "v1"}
+        The side (see the module docstring).
+    t : ndarray, shape (n,), float64
+        Side parameters, grid-index units.
+    rows, cols : int
+        R and C, the patch's quad counts.
+
+    Returns
+    -------
+    u, v : ndarray, shape (n,), float64
+        Surface parameters, grid-index units.
+    """
     t = np.asarray(t, dtype=np.float64)
     fixed = {"u0": 0.0, "u1": float(rows), "v0": 0.0, "v1": float(cols)}[name]
     if name in ("u0", "u1"):
@@ -48,8 +75,19 @@ def side_params(name: str, t: np.ndarray, rows: int, cols: int) -> tuple[np.ndar
 
 @dataclass(frozen=True)
 class Piece:
-    """Part of a side carried by one curve: the curve's parameter range `host` (increasing), the side's
-    range `side` (increasing), and whether the curve runs against the side there."""
+    """Part of a side carried by one curve.
+
+    Attributes
+    ----------
+    curve : int
+        The curve's index in `Layout.curves`.
+    host : tuple of int
+        The curve's parameter range (increasing).
+    side : tuple of int
+        The side's parameter range (increasing).
+    reversed : bool
+        Whether the curve runs against the side there.
+    """
 
     curve: int
     host: tuple[int, int]
@@ -59,7 +97,19 @@ class Piece:
 
 @dataclass(frozen=True)
 class CurveSpec:
-    """A boundary curve, parameterised by the index along its host side over [start, end]."""
+    """A boundary curve, parameterised by the index along its host side over [start, end].
+
+    Attributes
+    ----------
+    host_patch : int
+        The patch whose side hosts the curve.
+    host_side : str
+        That side's name.
+    start, end : int
+        The curve's range of side parameters.
+    vertices : tuple of int
+        Vertex ids at host parameters start..end.
+    """
 
     host_patch: int
     host_side: str
@@ -70,7 +120,15 @@ class CurveSpec:
 
 @dataclass(frozen=True)
 class SharedSegment:
-    """A stretch of boundary two patches share: (patch, side, t0, t1) on each, and their relative direction."""
+    """A stretch of boundary two patches share.
+
+    Attributes
+    ----------
+    a, b : tuple of (int, str, int, int)
+        (patch, side, t0, t1) on each patch, t0 < t1.
+    reversed : bool
+        Whether the two sides run against each other there.
+    """
 
     a: tuple[int, str, int, int]
     b: tuple[int, str, int, int]
@@ -79,6 +137,22 @@ class SharedSegment:
 
 @dataclass(frozen=True, eq=False)
 class Layout:
+    """Which patch borders which, and the curves that carry their sides.
+
+    Attributes
+    ----------
+    curves : list of CurveSpec
+        The boundary curves, each fitted once.
+    sides : dict of (int, str) to list of Piece
+        Per (patch, side), the pieces of curves that make it up, in side order.
+    shared : list of SharedSegment
+        The stretches of boundary two patches share, each once.
+    neighbours : list of tuple of int
+        Per patch, the patches sharing a stretch of its boundary, sorted.
+    side_neighbours : dict of (int, str) to tuple of int
+        The same per (patch, side).
+    """
+
     curves: list[CurveSpec]
     sides: dict[tuple[int, str], list[Piece]]
     shared: list[SharedSegment]
@@ -91,9 +165,22 @@ def _key(a: int, b: int) -> tuple[int, int]:
 
 
 def boundary_layout(grids: list[np.ndarray]) -> Layout:
-    """Segments, curves and pieces of patches given as grids of vertex ids (each int (R + 1, C + 1)).
+    """Segments, curves and pieces of patches given as grids of vertex ids.
 
-    Raises `PatchLayoutError` when an edge lies on the border of more than two patch sides.
+    Parameters
+    ----------
+    grids : list of ndarray, each shape (R + 1, C + 1), int
+        The patches' vertex ids (`cam.fit.grid.patch_grid`), of one quad mesh.
+
+    Returns
+    -------
+    Layout
+        The boundary curves, each side's pieces of them, the shared segments and the neighbours.
+
+    Raises
+    ------
+    PatchLayoutError
+        When an edge lies on the border of more than two patch sides.
     """
     sides = {(k, name): side_vertices(g, name) for k, g in enumerate(grids) for name in SIDES}
     edges: dict[tuple[int, int], list[tuple[int, str, int]]] = {}

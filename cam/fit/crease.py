@@ -13,22 +13,40 @@ from __future__ import annotations
 
 import numpy as np
 
+from cam.mesh.closest import MeshIndex, closest_points
 from cam.mesh.creases import Creases, closest_on_creases
 
-__all__ = ["snap_points", "edge_keys", "vertex_positions"]
+__all__ = ["edge_keys", "is_sharp_polyline", "sharp_edge_mask", "snap_points", "vertex_positions"]
 
 
 def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, corner: np.ndarray | None = None,
                 first: np.ndarray | None = None,
                 directions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Move points (n, 3) onto the creases where one lies within `radius` (n,) mm.
+    """Move points onto the creases where one lies within their radius.
 
-    corner bool (n,): these may go to a crease corner within their radius first, one point per
-    crease corner: the nearest, except that points flagged in `first` (bool (n,)) choose before
-    the others do.
-    directions float64 (n, 3): the direction of the sharp edge each point lies on (zero: any);
-    only a crease running within 30 degrees of it takes the point (see `closest_on_creases`).
-    Returns the points float64 (n, 3) and bool (n,) which of them moved.
+    Parameters
+    ----------
+    creases : Creases
+        The mesh's creases (`cam.mesh.creases.mesh_creases`).
+    points : ndarray, shape (n, 3), float64
+        The points, mm.
+    radius : ndarray, shape (n,), float64
+        How far each may move, mm.
+    corner : ndarray, shape (n,), bool, or None
+        These may go to a crease corner within their radius first, one point per crease corner:
+        the nearest, except that points flagged in `first` choose before the others do.
+    first : ndarray, shape (n,), bool, or None
+        See `corner`.
+    directions : ndarray, shape (n, 3), float64, or None
+        The direction of the sharp edge each point lies on (zero: any); only a crease running
+        within 30 degrees of it takes the point (see `closest_on_creases`).
+
+    Returns
+    -------
+    points : ndarray, shape (n, 3), float64
+        The points, moved where they moved, mm.
+    moved : ndarray, shape (n,), bool
+        Which of them moved.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3).copy()
     radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(P),))
@@ -59,31 +77,74 @@ def snap_points(creases: Creases, points: np.ndarray, radius: np.ndarray, *, cor
 
 
 def edge_keys(edges: np.ndarray | None) -> set[tuple[int, int]]:
-    """Undirected vertex pairs (int (k, 2)) as a set of sorted tuples."""
+    """Undirected vertex pairs as a set of sorted tuples.
+
+    Parameters
+    ----------
+    edges : ndarray, shape (k, 2), int, or None
+        Vertex pairs; None: none.
+
+    Returns
+    -------
+    set of tuple of int
+        (a, b) with a <= b for each pair.
+    """
     if edges is None:
         return set()
     E = np.sort(np.asarray(edges, dtype=np.int64).reshape(-1, 2), axis=1)
     return set(map(tuple, E.tolist()))
 
 
-def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sharp: set[tuple[int, int]],
+def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index: MeshIndex, *, sharp: set[tuple[int, int]],
                      creases: Creases | None, snap_radius_quads: float = 1.0) -> np.ndarray:
-    """Where each quad-mesh vertex of the grids sits on the mesh: float64 (k, 3), NaN for vertices in no grid.
+    """Where each quad-mesh vertex of the grids sits on the mesh.
 
     Vertices on a sharp patch border (an edge of the grid's outline in `sharp`) move onto the
     mesh's creases if one is within `snap_radius_quads` times their mean edge length; a vertex where
     sharp edges meet at an angle (or three or more meet) may go to a crease corner instead, one
     nearer to it than to its sharp neighbours.
     Every other vertex goes to its closest mesh point.
-    """
-    from cam.mesh.closest import closest_points
 
+    Parameters
+    ----------
+    vertices : ndarray, shape (k, 3), float64
+        The quad mesh's vertices, mm.
+    grids : list of ndarray, each shape (R + 1, C + 1), int
+        The patches' vertex ids.
+    index : MeshIndex
+        The triangle mesh (`cam.mesh.closest.mesh_index`).
+    sharp : set of tuple of int
+        The sharp edges of the quad mesh (`edge_keys`).
+    creases : Creases or None
+        The triangle mesh's creases; None: no vertex moves onto one.
+    snap_radius_quads : float
+        How far a vertex may move onto a crease, in its mean edge lengths.
+
+    Returns
+    -------
+    ndarray, shape (k, 3), float64
+        Each vertex's position, mm; NaN for vertices in no grid.
+    """
     V = np.asarray(vertices, dtype=np.float64)
     used = np.unique(np.concatenate([np.asarray(g).ravel() for g in grids]))
     out = np.full(V.shape, np.nan)
     out[used] = closest_points(index, V[used])[0]
     if creases is None or creases.tree is None or not sharp:
         return out
+    border_sharp, length = _sharp_borders(V, grids, sharp)
+    ids = np.array(sorted(border_sharp), dtype=np.int64)
+    if not ids.size:
+        return out
+    corner, direction = _corners_and_directions(V, ids, border_sharp)
+    radius = snap_radius_quads * np.array([np.mean(length[v]) for v in ids.tolist()])
+    out[ids] = _snap_border_vertices(creases, ids, out[ids].copy(), radius, corner, direction, border_sharp)
+    return out
+
+
+def _sharp_borders(V: np.ndarray, grids: list[np.ndarray], sharp: set[tuple[int, int]]
+                   ) -> tuple[dict[int, list[int]], dict[int, list[float]]]:
+    """Per vertex on a sharp patch border, its neighbours along sharp border edges; per grid vertex, the
+    lengths (mm) of its grid edges."""
     border_sharp: dict[int, list[int]] = {}
     length: dict[int, list[float]] = {}
     for g in grids:
@@ -103,9 +164,14 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
             if (min(x, y), max(x, y)) in sharp:
                 border_sharp.setdefault(x, []).append(y)
                 border_sharp.setdefault(y, []).append(x)
-    ids = np.array(sorted(border_sharp), dtype=np.int64)
-    if not ids.size:
-        return out
+    return border_sharp, length
+
+
+def _corners_and_directions(V: np.ndarray, ids: np.ndarray, border_sharp: dict[int, list[int]]
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """For the vertices `ids` (m,) on sharp borders: which are corners of the sharp-edge network (bool
+    (m,): three or more sharp edges, or two at an angle), and the direction (m, 3) their sharp edges
+    run (zero at a corner)."""
     corner = np.zeros(ids.size, dtype=bool)
     # The way the sharp edges run through a vertex; a corner may take a crease of any direction.
     direction = np.zeros((ids.size, 3))
@@ -120,8 +186,14 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
             direction[n] = 0.0 if corner[n] else V[others[1]] - V[others[0]]
         else:
             direction[n] = V[others[0]] - V[vid]
-    radius = snap_radius_quads * np.array([np.mean(length[v]) for v in ids.tolist()])
-    start = out[ids].copy()
+    return corner, direction
+
+
+def _snap_border_vertices(creases: Creases, ids: np.ndarray, start: np.ndarray, radius: np.ndarray,
+                          corner: np.ndarray, direction: np.ndarray, border_sharp: dict[int, list[int]]
+                          ) -> np.ndarray:
+    """The vertices `ids` (m,), at `start` (m, 3) mm on the mesh, moved onto the creases within `radius`
+    (m,) mm: corners onto a crease corner first, junctions before bends; (m, 3) mm."""
     # A junction of three or more sharp edges goes to a crease corner where as many creases meet
     # before a vertex where the sharp row only bends may take it: the bend can sit nearer the
     # corner (the remesher's junction a quad edge off it), but only the junction has the corner's
@@ -139,8 +211,45 @@ def vertex_positions(vertices: np.ndarray, grids: list[np.ndarray], index, *, sh
                    for o in border_sharp[int(ids[n])])]
     if gone:
         snapped[gone] = snap_points(creases, start[gone], radius[gone])[0]
-    out[ids] = snapped
-    return out
+    return snapped
+
+
+def sharp_edge_mask(vertices: np.ndarray, sharp: set[tuple[int, int]]) -> np.ndarray:
+    """Which edges of a vertex polyline are sharp edges.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (m,), int
+        Vertex ids along the polyline.
+    sharp : set of tuple of int
+        The sharp edges (`edge_keys`).
+
+    Returns
+    -------
+    ndarray, shape (m - 1,), bool
+    """
+    return np.array([(min(a, b), max(a, b)) in sharp
+                     for a, b in zip(vertices[:-1].tolist(), vertices[1:].tolist())], dtype=bool)
+
+
+def is_sharp_polyline(vertices: np.ndarray, sharp: set[tuple[int, int]]) -> bool:
+    """Whether most edges of a vertex polyline are sharp edges.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (m,), int
+        Vertex ids along the polyline.
+    sharp : set of tuple of int
+        The sharp edges (`edge_keys`).
+
+    Returns
+    -------
+    bool
+        True where at least half its edges are sharp; False without sharp edges or edges.
+    """
+    if not sharp or len(vertices) < 2:
+        return False
+    return 2 * int(sharp_edge_mask(vertices, sharp).sum()) >= len(vertices) - 1
 
 
 def _on_crease_junction(creases: Creases, points: np.ndarray) -> np.ndarray:

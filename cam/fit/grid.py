@@ -27,25 +27,61 @@ class PatchGridError(GeometryError):
 
 def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = None,
                rows: int | None = None, cols: int | None = None) -> np.ndarray:
-    """Vertex ids of a patch as a grid: int64 (R + 1, C + 1), index [i, j] with i along u.
+    """Vertex ids of a patch as a grid, index [i, j] with i along u.
 
-    quads: int (m, 4) faces of the quad mesh (counter-clockwise seen from outside);
-    faces: int (k,) the patch's face indices; corner: vertex id to put at [0, 0]
-    (a patch corner; default: any corner); rows/cols: the expected counts (R x C or C x R
-    is accepted, the grid keeps the orientation that puts `corner` first).
-    Raises `PatchGridError` when the faces do not form one rectangular grid (ValueError when `quads`
-    is not (m, 4)).
+    Parameters
+    ----------
+    quads : ndarray, shape (m, 4), int
+        Faces of the quad mesh (counter-clockwise seen from outside), vertex ids.
+    faces : ndarray, shape (k,), int
+        The patch's face indices into `quads`.
+    corner : int or None
+        Vertex id to put at [0, 0] (a patch corner); None: the corner with the smallest id.
+    rows, cols : int or None
+        The expected quad counts (R x C or C x R is accepted, the grid keeps the orientation that
+        puts `corner` first); None: not checked.
+
+    Returns
+    -------
+    ndarray, shape (R + 1, C + 1), int64
+        The grid's vertex ids; [i + 1, j] follows [i, j] in the quads' own vertex order, so
+        S_u x S_v of a surface fitted on it points the way the quads' normals point.
+
+    Raises
+    ------
+    PatchGridError
+        When the faces do not form one rectangular grid, or not of rows x cols quads.
+    ValueError
+        When `quads` is not (m, 4).
     """
     Q = np.asarray(quads, dtype=np.int64)
     if Q.ndim != 2 or Q.shape[1] != 4:
         raise ValueError(f"quads must have shape (m, 4), got {Q.shape}")
+    fids = _face_ids(faces, len(Q))
+    edge_faces = _edge_faces(Q, fids)
+    incident: dict[int, list[int]] = {}
+    for f in fids:
+        for vtx in Q[f]:
+            incident.setdefault(int(vtx), []).append(f)
+    corner = _first_corner(Q, incident, edge_faces, corner)
+    pos, grid = _walk_faces(Q, incident[int(corner)][0], int(corner), edge_faces)
+    return _grid_array(pos, grid, len(fids), rows=rows, cols=cols)
+
+
+def _face_ids(faces: np.ndarray, count: int) -> list[int]:
+    """The patch's face ids as a list, each once and among the `count` quads."""
     fids = [int(f) for f in np.asarray(faces, dtype=np.int64).ravel()]
     if not fids:
         raise PatchGridError("a patch needs at least one face")
-    if min(fids) < 0 or max(fids) >= len(Q):
-        raise PatchGridError(f"patch face ids must lie in 0..{len(Q) - 1}")
+    if min(fids) < 0 or max(fids) >= count:
+        raise PatchGridError(f"patch face ids must lie in 0..{count - 1}")
     if len(set(fids)) != len(fids):
         raise PatchGridError("patch lists a face twice")
+    return fids
+
+
+def _edge_faces(Q: np.ndarray, fids: list[int]) -> dict[tuple[int, int], list[int]]:
+    """The patch's faces along each of its edges (sorted vertex pair): one on its border, two inside."""
     edge_faces: dict[tuple[int, int], list[int]] = {}
     for f in fids:
         for a in range(4):
@@ -53,10 +89,11 @@ def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = Non
             edge_faces.setdefault(e, []).append(f)
     if any(len(v) > 2 for v in edge_faces.values()):
         raise PatchGridError("patch faces share an edge more than twice (non-manifold)")
-    incident: dict[int, list[int]] = {}
-    for f in fids:
-        for vtx in Q[f]:
-            incident.setdefault(int(vtx), []).append(f)
+    return edge_faces
+
+
+def _first_corner(Q: np.ndarray, incident: dict[int, list[int]], edge_faces: dict, corner: int | None) -> int:
+    """The vertex to put at [0, 0]: `corner`, checked, or the corner of the patch with the smallest id."""
     if corner is None:
         corners = [v for v, fs in incident.items() if len(fs) == 1 and _is_corner(Q[fs[0]], v, edge_faces)]
         if not corners:
@@ -65,9 +102,15 @@ def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = Non
     if len(incident.get(int(corner), [])) != 1:
         raise PatchGridError(f"vertex {corner} is not a corner of the patch (it is in "
                          f"{len(incident.get(int(corner), []))} of its faces)")
-    start = incident[int(corner)][0]
+    return corner
+
+
+def _walk_faces(Q: np.ndarray, start: int, corner: int, edge_faces: dict
+                ) -> tuple[dict[int, tuple[int, int]], dict[tuple[int, int], int]]:
+    """Each face's cell (i, j) and each grid point's vertex id, reached breadth first from `start`,
+    the face at `corner`."""
     cyc = list(Q[start])
-    a = cyc.index(int(corner))
+    a = cyc.index(corner)
     # [i + 1, j] follows the corner in the face's own order, [i, j + 1] precedes it: S_u x S_v = quad normal.
     pos: dict[int, tuple[int, int]] = {start: (0, 0)}
     grid: dict[tuple[int, int], int] = {(0, 0): cyc[a], (1, 0): cyc[(a + 1) % 4], (1, 1): cyc[(a + 2) % 4],
@@ -102,14 +145,21 @@ def patch_grid(quads: np.ndarray, faces: np.ndarray, *, corner: int | None = Non
                     raise PatchGridError("patch faces do not form a rectangular grid (a grid point is claimed twice)")
             pos[g] = (ni, nj)
             queue.append(g)
-    if len(pos) != len(fids):
-        raise PatchGridError(f"patch faces are not connected: reached {len(pos)} of {len(fids)}")
+    return pos, grid
+
+
+def _grid_array(pos: dict[int, tuple[int, int]], grid: dict[tuple[int, int], int], faces: int, *,
+                rows: int | None, cols: int | None) -> np.ndarray:
+    """The walk's grid as an int64 (R + 1, C + 1) array, once it is checked to be one rectangle of all
+    the `faces` (of rows x cols where given) without a repeated vertex."""
+    if len(pos) != faces:
+        raise PatchGridError(f"patch faces are not connected: reached {len(pos)} of {faces}")
     ij = np.array(list(pos.values()))
     if ij.min() < 0:
         raise PatchGridError("patch faces do not form a rectangular grid (the corner is not a grid corner)")
     R, C = ij[:, 0].max() + 1, ij[:, 1].max() + 1
-    if R * C != len(fids):
-        raise PatchGridError(f"patch faces do not form a rectangular grid: {len(fids)} faces in a {R} x {C} box")
+    if R * C != faces:
+        raise PatchGridError(f"patch faces do not form a rectangular grid: {faces} faces in a {R} x {C} box")
     if rows is not None and cols is not None and sorted((R, C)) != sorted((int(rows), int(cols))):
         raise PatchGridError(f"patch says {rows} x {cols} quads but its faces form {R} x {C}")
     out = np.empty((R + 1, C + 1), dtype=np.int64)
@@ -145,12 +195,28 @@ def _far_slots(s0, s1, i, j, di, dj, far_a, far_b) -> dict[tuple[int, int], int]
 
 
 def orient_grid(quads: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """`grid` (int (R + 1, C + 1) vertex ids), transposed if needed so that S_u x S_v follows the quads' normals.
+    """A patch's grid, transposed if needed so that S_u x S_v follows the quads' normals.
 
     The quad holding grid[0, 0], grid[1, 0], grid[1, 1], grid[0, 1] must list them in that cyclic
-    order; listed the other way round the grid is transposed. Raises `PatchGridError` when the grid
-    is not (R + 1, C + 1) with R, C >= 1, names a vertex that is in no quad of `quads` (int (m, 4)), or
-    no quad has the four corners of its first cell.
+    order; listed the other way round the grid is transposed.
+
+    Parameters
+    ----------
+    quads : ndarray, shape (m, 4), int
+        Faces of the quad mesh, vertex ids.
+    grid : ndarray, shape (R + 1, C + 1), int
+        The patch's vertex ids (as patches.json lists them).
+
+    Returns
+    -------
+    ndarray, shape (R + 1, C + 1) or (C + 1, R + 1), int64
+        `grid`, or a transposed copy of it.
+
+    Raises
+    ------
+    PatchGridError
+        When the grid is not (R + 1, C + 1) with R, C >= 1, names a vertex that is in no quad of
+        `quads`, or no quad has the four corners of its first cell.
     """
     g = np.asarray(grid, dtype=np.int64)
     # The grid comes from patches.json as it is: its shape and ids are the file's, not a program's.

@@ -1,11 +1,12 @@
-"""Patch parameterisation: sample the mesh, seed (u, v) from the quad grid, project onto surfaces.
+"""Patch parameterisation seeded from the quad grid: mesh samples, their patch and (u, v), and anchors.
 
 The quad grid of a patch is a discrete parameterisation of it: quad (i, j) of an
 R x C grid covers [i, i + 1] x [j, j + 1] in grid-index units (the fit works in
 these units and divides by R and C only when it writes the surface out). Mesh samples take the
-parameters of their closest point on the grid's quads; the fit then corrects them
-by projecting onto the current surface (`project_points`, Newton on |S - p|²),
-which is what the squared-distance iteration needs at every step.
+parameters of their closest point on the grid's quads (`assign_samples`); the fit then corrects them
+by projecting onto the current surface (`cam.fit.foot`). The grid's own vertices, moved onto the
+mesh, keep their grid parameters (`grid_anchors`): they hold the parameterisation where
+squared-distance steps leave it free to slide.
 """
 
 from __future__ import annotations
@@ -14,12 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.mesh.closest import closest_points, mesh_index
-from cam.spline.basis import evaluate_surface, span_params
-from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
+from cam.fit.foot import unit_rows
+from cam.mesh.closest import MeshIndex, closest_points, mesh_index
 
-__all__ = ["mesh_samples", "Assignment", "assign_samples", "project_points", "FootFrame", "foot_frames",
-           "distance_to_surface", "Anchors", "grid_anchors"]
+__all__ = ["Anchors", "Assignment", "assign_samples", "grid_anchors", "mesh_samples"]
 
 _LEVELS = {0: 1, 1: 3, 3: 4, 6: 5, 10: 6}  # samples per face -> barycentric lattice level
 
@@ -27,9 +26,21 @@ _LEVELS = {0: 1, 1: 3, 3: 4, 6: 5, 10: 6}  # samples per face -> barycentric lat
 def mesh_samples(vertices: np.ndarray, faces: np.ndarray, *, per_face: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Points on a triangle mesh with unit normals: the vertices, plus `per_face` interior points per face.
 
-    vertices float64 (n, 3) mm, faces int (m, 3); per_face in {0, 1, 3, 6, 10} (points of the
-    barycentric lattice strictly inside each face). Returns points and normals, float64 (k, 3).
-    Vertices no face uses are left out; vertex normals are area weighted.
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3), float64
+        The mesh's vertices, mm.
+    faces : ndarray, shape (m, 3), int
+        Its triangles, vertex ids.
+    per_face : {0, 1, 3, 6, 10}
+        Points of the barycentric lattice strictly inside each face.
+
+    Returns
+    -------
+    points : ndarray, shape (k, 3), float64
+        The vertices some face uses, then the faces' interior points (face by face), mm.
+    normals : ndarray, shape (k, 3), float64
+        Unit normals: area weighted at the vertices, the face's own inside it.
     """
     if per_face not in _LEVELS:
         raise ValueError(f"per_face must be one of {sorted(_LEVELS)}, got {per_face}")
@@ -41,25 +52,28 @@ def mesh_samples(vertices: np.ndarray, faces: np.ndarray, *, per_face: int = 1) 
     for k in range(3):
         np.add.at(vn, F[:, k], fn)
     used = np.unique(F)
-    pts, nrm = [V[used]], [_unit(vn[used])]
+    pts, nrm = [V[used]], [unit_rows(vn[used])]
     L = _LEVELS[per_face]
     bary = np.array([(a, b, L - a - b) for a in range(1, L) for b in range(1, L - a)], dtype=np.float64) / L
     if bary.size:
         pts.append(np.einsum("bk,fkd->fbd", bary, tri).reshape(-1, 3))
-        nrm.append(np.repeat(_unit(fn), len(bary), axis=0))
+        nrm.append(np.repeat(unit_rows(fn), len(bary), axis=0))
     return np.concatenate(pts), np.concatenate(nrm)
-
-
-def _unit(a: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(a, axis=-1, keepdims=True)
-    return np.divide(a, n, out=np.zeros_like(a), where=n > 0)
 
 
 @dataclass(frozen=True, eq=False)
 class Assignment:
-    """Which patch each sample falls in and where: patch int64 (n,) (-1: none); u, v float64 (n,) in
-    grid-index units (u in [0, R] counts quads along the patch's first axis); distance float64 (n,) mm
-    to the quad mesh."""
+    """Which patch each of n samples falls in, and where.
+
+    Attributes
+    ----------
+    patch : ndarray, shape (n,), int64
+        The patch's index in the grids given; -1: none (a quad in no patch).
+    u, v : ndarray, shape (n,), float64
+        Parameters in grid-index units: u in [0, R] counts quads along the patch's first axis.
+    distance : ndarray, shape (n,), float64
+        Distance to the quad mesh, mm.
+    """
 
     patch: np.ndarray
     u: np.ndarray
@@ -71,9 +85,22 @@ def assign_samples(points: np.ndarray, vertices: np.ndarray, grids: list[np.ndar
                    other_quads: np.ndarray | None = None) -> Assignment:
     """Assign samples to the patch of their closest quad and seed their parameters from the grid.
 
-    points float64 (n, 3) mm; vertices float64 (k, 3) quad-mesh vertices; grids: per patch int
-    (R + 1, C + 1) vertex ids; other_quads int (q, 4): quads in no patch (the setup base...),
-    which take samples away from the patches (patch -1) instead of letting them stick to one.
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3), float64
+        The samples, mm.
+    vertices : ndarray, shape (k, 3), float64
+        The quad mesh's vertices, mm.
+    grids : list of ndarray, each shape (R + 1, C + 1), int
+        Per patch, its vertex ids (`cam.fit.grid.patch_grid`).
+    other_quads : ndarray, shape (q, 4), int, or None
+        Quads in no patch (the setup base...), which take samples away from the patches
+        (patch -1) instead of letting them stick to one.
+
+    Returns
+    -------
+    Assignment
+        Per sample its patch, (u, v) on the patch's quads and its distance to them.
     """
     V = np.asarray(vertices, dtype=np.float64)
     tris, owner, cell = [], [], []
@@ -103,254 +130,26 @@ def assign_samples(points: np.ndarray, vertices: np.ndarray, grids: list[np.ndar
     return Assignment(patch=own[tri], u=np.clip(i + lu, 0, R), v=np.clip(j + lv, 0, C), distance=dist)
 
 
-def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, points: np.ndarray,
-                   u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), iterations: int = 8
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Foot points of `points` (n, 3) on the surface, by Newton's method from (u, v), kept in the domain.
-
-    Returns u, v float64 (n,) and distance float64 (n,) mm. A step that does not shorten the
-    distance is halved (twice), then dropped, so the distance never grows. Across C0 knot lines
-    see `cam.spline.surface.foot_in_pieces`.
-    """
-    p, q = degree
-    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
-    P = np.asarray(points, dtype=np.float64)
-    start = np.stack([np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)], -1).reshape(-1, 2)
-
-    def newton(rows, uv, lo, hi):
-        fu, fv, d = _newton(ku, kv, control_points, P[rows], uv[:, 0], uv[:, 1], lo, hi, degree, iterations)
-        return np.stack([fu, fv], -1), d
-
-    pieces_u, pieces_v = c0_pieces(ku, p, ku[p], ku[-p - 1]), c0_pieces(kv, q, kv[q], kv[-q - 1])
-    bound = None
-    if pieces_u.size > 2 or pieces_v.size > 2:
-        boxes = make_piece_boxes(ku, kv, control_points, pieces_u, pieces_v, degree=degree)
-
-        def bound(rows, iu, iv):
-            return boxes.distance_bound(P[rows], iu, iv)
-    uv, d = foot_in_pieces(newton, pieces_u, pieces_v, np.clip(start, [ku[p], kv[q]], [ku[-p - 1], kv[-q - 1]]),
-                           lower_bound=bound)
-    return uv[:, 0], uv[:, 1], d
-
-
-def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
-    """Newton steps for foot points, each kept inside its box lo..hi (n, 2).
-
-    A row stops once its step moves it less than 1e-10 (or not at all): most converge in two or
-    three steps, and the rest keep iterating alone."""
-    lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
-    u, v = np.clip(u, lo_u, hi_u), np.clip(v, lo_v, hi_v)  # new arrays: updated in place below
-    dist = np.full(u.size, np.nan)
-
-    def distance(uu, vv, idx):
-        S = evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
-        return np.linalg.norm(S - P[idx], axis=1)
-
-    active = np.arange(u.size)
-    for _ in range(iterations):
-        if not active.size:
-            break
-        ua, va = u[active], v[active]
-        d = evaluate_surface(ku, kv, control_points, ua, va, degree=degree, order=2)
-        r = d[(0, 0)] - P[active]
-        su, sv = d[(1, 0)], d[(0, 1)]
-        g = np.stack([np.einsum("ij,ij->i", r, su), np.einsum("ij,ij->i", r, sv)], 1)
-        # A parameter on its bound whose descent leads out of the box is held there, and the step is
-        # taken in the other alone: the full step, clamped, can leave such a row where it is while
-        # the foot lies along the border (a skewed parameterisation), short of it.
-        held_u = ((ua <= lo_u[active]) & (g[:, 0] > 0)) | ((ua >= hi_u[active]) & (g[:, 0] < 0))
-        held_v = ((va <= lo_v[active]) & (g[:, 1] > 0)) | ((va >= hi_v[active]) & (g[:, 1] < 0))
-        g[held_u, 0] = 0.0
-        g[held_v, 1] = 0.0
-        free = ~(held_u | held_v)
-        juu, juv, jvv = (np.einsum("ij,ij->i", a, b) for a, b in ((su, su), (su, sv), (sv, sv)))
-        huu = np.where(held_u, 1.0, juu + np.einsum("ij,ij->i", r, d[(2, 0)]))
-        huv = np.where(free, juv + np.einsum("ij,ij->i", r, d[(1, 1)]), 0.0)
-        hvv = np.where(held_v, 1.0, jvv + np.einsum("ij,ij->i", r, d[(0, 2)]))
-        det = huu * hvv - huv**2
-        bad = (det <= 1e-12 * (huu * hvv + 1e-300)) | (huu <= 0) | (hvv <= 0)
-        # Where the full Hessian is not positive definite, fall back to Gauss–Newton (J^T J).
-        huu = np.where(bad & ~held_u, juu, huu)
-        huv = np.where(bad & free, juv, huv)
-        hvv = np.where(bad & ~held_v, jvv, hvv)
-        det = huu * hvv - huv**2
-        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-        step_u = -(hvv * g[:, 0] - huv * g[:, 1]) / det
-        step_v = -(huu * g[:, 1] - huv * g[:, 0]) / det
-        current = np.linalg.norm(r, axis=1)
-        new_u, new_v, new_d = ua.copy(), va.copy(), current.copy()
-        todo = np.flatnonzero(np.abs(step_u) + np.abs(step_v) > 1e-13)
-        scale = 1.0
-        for _half in range(3):  # full step, then halves, only where the previous try did not help
-            if not todo.size:
-                break
-            rows = active[todo]
-            tu = np.clip(ua[todo] + scale * step_u[todo], lo_u[rows], hi_u[rows])
-            tv = np.clip(va[todo] + scale * step_v[todo], lo_v[rows], hi_v[rows])
-            td = distance(tu, tv, rows)
-            better = td < current[todo]
-            idx = todo[better]
-            new_u[idx], new_v[idx], new_d[idx] = tu[better], tv[better], td[better]
-            todo = todo[~better]
-            scale *= 0.5
-        moved = np.maximum(np.abs(new_u - ua), np.abs(new_v - va))
-        u[active], v[active], dist[active] = new_u, new_v, new_d
-        active = active[moved >= 1e-10]
-    missing = np.flatnonzero(np.isnan(dist))  # only with iterations = 0
-    if missing.size:
-        dist[missing] = distance(u[missing], v[missing], missing)
-    return u, v, dist
-
-
-@dataclass(frozen=True, eq=False)
-class FootFrame:
-    """Differential geometry at foot points, each (n, 3) or (n,): surface point, unit normal N = S_u x S_v,
-    principal directions t1, t2 (unit, tangent) with curvatures k1, k2 (1/mm, positive when the surface
-    bends towards +N), S_u and S_v."""
-
-    point: np.ndarray
-    normal: np.ndarray
-    t1: np.ndarray
-    t2: np.ndarray
-    k1: np.ndarray
-    k2: np.ndarray
-    su: np.ndarray
-    sv: np.ndarray
-
-
-def foot_frames(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, u: np.ndarray,
-                v: np.ndarray, *, degree: tuple[int, int] = (3, 3)) -> FootFrame:
-    """Normals, principal directions and curvatures at (u, v) from the fundamental forms."""
-    d = evaluate_surface(knots_u, knots_v, control_points, u, v, degree=degree, order=2)
-    su, sv = d[(1, 0)], d[(0, 1)]
-    n = _unit(np.cross(su, sv))
-    E, F, G = (np.einsum("ij,ij->i", a, b) for a, b in ((su, su), (su, sv), (sv, sv)))
-    L, M, N = (np.einsum("ij,ij->i", d[k], n) for k in ((2, 0), (1, 1), (0, 2)))
-    det = E * G - F**2
-    # A degenerate point (S_u parallel to S_v) has no curvature to speak of: treat it as flat.
-    flat = ~(det > 1e-12 * E * G) | ~np.isfinite(det)
-    det = np.where(flat, 1.0, det)
-    L, M, N = (np.where(flat, 0.0, x) for x in (L, M, N))
-    # Shape operator W = I^-1 II in the (S_u, S_v) basis.
-    w00, w01 = (G * L - F * M) / det, (G * M - F * N) / det
-    w10, w11 = (E * M - F * L) / det, (E * N - F * M) / det
-    half_trace = 0.5 * (w00 + w11)
-    disc = np.sqrt(np.maximum(half_trace**2 - (w00 * w11 - w01 * w10), 0.0))
-    k1, k2 = half_trace + disc, half_trace - disc
-    # Eigenvector of k1: pick the better conditioned of the two row-derived candidates.
-    a1, b1 = w01, k1 - w00
-    a2, b2 = k1 - w11, w10
-    use2 = (a2**2 + b2**2) > (a1**2 + b1**2)
-    a, b = np.where(use2, a2, a1), np.where(use2, b2, b1)
-    t1 = a[:, None] * su + b[:, None] * sv
-    degenerate = np.linalg.norm(t1, axis=1) < 1e-12 * (np.linalg.norm(su, axis=1) + 1e-300)
-    t1 = np.where(degenerate[:, None], su, t1)  # umbilic: any tangent direction is principal
-    t1 = _unit(t1 - np.einsum("ij,ij->i", t1, n)[:, None] * n)
-    t2 = np.cross(n, t1)
-    return FootFrame(point=d[(0, 0)], normal=n, t1=t1, t2=t2, k1=k1, k2=k2, su=su, sv=sv)
-
-
-def distance_to_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
-                        points: np.ndarray, *, degree: tuple[int, int] = (3, 3), density: int = 4, starts: int = 4,
-                        search_above: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distance from `points` (n, 3) to a surface without a starting guess: u, v, distance (n,) each.
-
-    Starts Newton from the nearest of `density` x `density` samples per knot span, so a
-    point far from where any guess would put it still finds its foot point. Where the foot found
-    lies on the domain's border, or another of the `starts` nearest samples lies more than a
-    sample away from it in the parameter grid, Newton runs from that sample too and the nearest
-    foot is kept: the border can hold a local minimum that is not the foot, and the surface can
-    come back near the point elsewhere (where a closed surface meets itself at a seam, the
-    sample nearest a point can lie on the seam's far side, and Newton stops on that border or
-    just inside it).
-
-    search_above (mm): a point whose distance found is still above it is searched span by span:
-    Newton runs from nine starts inside every knot span whose control points' box is nearer than
-    the foot found (a span lies in that hull), so a distance that decides a verdict does not rest
-    on one start.
-    """
-    from scipy.spatial import cKDTree
-
-    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
-    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    gu = span_params(ku, density)
-    gv = span_params(kv, density)
-    uu, vv = np.meshgrid(gu, gv, indexing="ij")
-    uu, vv = uu.ravel(), vv.ravel()
-    S = evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
-    m = int(min(max(starts, 1), len(S)))
-    nearest = cKDTree(S).query(P, k=m)[1].reshape(len(P), m)
-    u, v, d = project_points(ku, kv, control_points, P, uu[nearest[:, 0]], vv[nearest[:, 0]], degree=degree)
-    p, q = degree
-    for j in range(1, m):
-        # Grid cells of the foot and of the j-th start (row-major, as `nearest` indexes them).
-        fi = np.searchsorted(gu, u) - 0.5
-        fj = np.searchsorted(gv, v) - 0.5
-        si, sj = np.divmod(nearest[:, j], gv.size)
-        on_border = (u <= ku[p]) | (u >= ku[-p - 1]) | (v <= kv[q]) | (v >= kv[-q - 1])
-        rows = np.flatnonzero(on_border | (np.abs(si - fi) > 1.5) | (np.abs(sj - fj) > 1.5))
-        if not rows.size:
-            continue
-        s = nearest[rows, j]
-        fu, fv, fd = project_points(ku, kv, control_points, P[rows], uu[s], vv[s], degree=degree)
-        better = fd < d[rows]
-        rows = rows[better]
-        u[rows], v[rows], d[rows] = fu[better], fv[better], fd[better]
-    if search_above is not None:
-        rows = np.flatnonzero(d > search_above)
-        if rows.size:
-            u[rows], v[rows], d[rows] = _search_spans(ku, kv, control_points, P[rows], u[rows], v[rows], d[rows],
-                                                      degree)
-    return u, v, d
-
-
-def _search_spans(ku, kv, control_points, P, u, v, d, degree, chunk: int = 1_000_000):
-    """Improve feet (u, v, d, each (n,), updated in place and returned) of points P (n, 3) by Newton
-    inside every knot span whose control-point box is nearer than d, from nine points of the span."""
-    p, q = degree
-    cp = np.asarray(control_points, dtype=np.float64)
-    nu, nv = cp.shape[:2]
-    su, sv, lo_all, hi_all = span_boxes(ku, kv, cp, degree=degree)
-    i, j = (a.ravel() for a in np.meshgrid(su, sv, indexing="ij"))
-    box_lo, box_hi = lo_all[i, j], hi_all[i, j]  # (spans, 3)
-    # The span's own derivatives hold up to its end, not at a C0 knot there: approach it from below.
-    lo = np.stack([ku[i + p], kv[j + q]], -1)
-    hi = np.stack([np.where(i + p + 1 < nu, np.nextafter(ku[i + p + 1], -np.inf), ku[i + p + 1]),
-                   np.where(j + q + 1 < nv, np.nextafter(kv[j + q + 1], -np.inf), kv[j + q + 1])], -1)
-    rows, spans = [], []
-    step = max(1, chunk // max(len(i), 1))
-    for c in range(0, len(P), step):
-        x = P[c:c + step, None, :]
-        gap = np.maximum(np.maximum(box_lo - x, x - box_hi), 0.0)
-        r, k = np.nonzero(np.sqrt(np.einsum("nki,nki->nk", gap, gap)) < d[c:c + step, None])
-        rows.append(r + c)
-        spans.append(k)
-    rows, spans = np.concatenate(rows), np.concatenate(spans)
-    if not rows.size:
-        return u, v, d
-    # Nine starts per span (a folded span holds more than one local minimum).
-    f = np.array([1 / 6, 1 / 2, 5 / 6])
-    fu_, fv_ = (a.ravel() for a in np.meshgrid(f, f, indexing="ij"))
-    rows, spans = np.repeat(rows, fu_.size), np.repeat(spans, fu_.size)
-    w = np.stack([np.tile(fu_, rows.size // fu_.size), np.tile(fv_, rows.size // fu_.size)], -1)
-    start = lo[spans] + w * (hi[spans] - lo[spans])
-    fu, fv, fd = _newton(ku, kv, cp, P[rows], start[:, 0], start[:, 1], lo[spans], hi[spans], degree, 12)
-    order = np.argsort(fd, kind="stable")[::-1]  # nearest last, so it is the one written
-    rows, fu, fv, fd = rows[order], fu[order], fv[order], fd[order]
-    better = fd < d[rows]
-    u[rows[better]], v[rows[better]], d[rows[better]] = fu[better], fv[better], fd[better]
-    return u, v, d
-
-
 @dataclass(frozen=True, eq=False)
 class Anchors:
     """Quad-grid vertices on the mesh, with the grid parameters they have by construction.
 
-    points, normals float64 (m, 3) (mm, unit mesh normals); u, v float64 (m,) grid indices;
-    across_u, across_v float64 (m, 3): at vertices on a u-border (i = 0 or R) / v-border
-    (j = 0 or C), the unit tangent direction across that border; zero elsewhere. The border
-    lies where the patch's quads end, so that component is exact; where a vertex sits along
-    the border or inside is only as regular as the remesher made it.
+    The border lies where the patch's quads end, so the component across it is exact; where a
+    vertex sits along the border or inside is only as regular as the remesher made it.
+
+    Attributes
+    ----------
+    points : ndarray, shape (m, 3), float64
+        The grid's m = (R + 1)(C + 1) vertices on the mesh, row-major, mm.
+    normals : ndarray, shape (m, 3), float64
+        Unit normals of the mesh triangles nearest them.
+    u, v : ndarray, shape (m,), float64
+        Their grid indices i, j.
+    across_u, across_v : ndarray, shape (m, 3), float64
+        At vertices on a u-border (i = 0 or R) / v-border (j = 0 or C), the unit tangent
+        direction across that border; zero elsewhere.
+    targets : ndarray, shape (m, 3), float64
+        Where a smooth parameterisation puts the grid points, mm (see `grid_anchors`).
     """
 
     points: np.ndarray
@@ -362,17 +161,34 @@ class Anchors:
     targets: np.ndarray
 
 
-def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, knot_spacing_quads: float = 2.0,
+def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index: MeshIndex, *, knot_spacing_quads: float = 2.0,
                  positions: np.ndarray | None = None) -> Anchors:
-    """Anchors of one patch: its grid (int (R + 1, C + 1) vertex ids) moved onto the mesh `index`.
+    """Anchors of one patch: its grid's vertices moved onto the mesh.
 
-    positions float64 (k, 3), one row per quad-mesh vertex: where each vertex goes (e.g. onto a
-    crease, see `cam.fit.crease`); default: the closest point of the mesh.
-
-    `targets` (m, 3) are where a smooth parameterisation puts the grid points: a cubic spline
+    `Anchors.targets` are where a smooth parameterisation puts the grid points: a cubic spline
     with knots every `knot_spacing_quads` quads fitted to the grid vertices at their indices, so the
     remesher's vertex-to-vertex irregularity is not forced on the fit while its overall
     layout is kept (and an exact grid stays exact).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (k, 3), float64
+        The quad mesh's vertices, mm.
+    grid : ndarray, shape (R + 1, C + 1), int
+        The patch's vertex ids.
+    index : MeshIndex
+        The triangle mesh (`cam.mesh.closest.mesh_index`).
+    knot_spacing_quads : float
+        Knot spacing of the smoothing spline, quads.
+    positions : ndarray, shape (k, 3), float64, or None
+        Where each quad-mesh vertex goes, mm (e.g. onto a crease, see `cam.fit.crease`);
+        None: the closest point of the mesh.
+
+    Returns
+    -------
+    Anchors
+        The grid's vertices on the mesh with their indices, normals, across-border directions
+        and targets.
     """
     from cam.spline.basis import surface_matrix
 
@@ -383,14 +199,14 @@ def grid_anchors(vertices: np.ndarray, grid: np.ndarray, index, *, knot_spacing_
         on_mesh = np.asarray(positions, dtype=np.float64)[g.ravel()]
     f = index.faces[tri]
     corner = index.vertices[f]
-    n = _unit(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]))
+    n = unit_rows(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]))
     di = np.gradient(G, axis=0).reshape(-1, 3)
     dj = np.gradient(G, axis=1).reshape(-1, 3)
-    ti = _unit(di - np.einsum("ij,ij->i", di, n)[:, None] * n)
-    tj = _unit(dj - np.einsum("ij,ij->i", dj, n)[:, None] * n)
+    ti = unit_rows(di - np.einsum("ij,ij->i", di, n)[:, None] * n)
+    tj = unit_rows(dj - np.einsum("ij,ij->i", dj, n)[:, None] * n)
     # Across a u-border is along i, with the along-border (j) part removed; likewise for v.
-    au = _unit(ti - np.einsum("ij,ij->i", ti, tj)[:, None] * tj)
-    av = _unit(tj - np.einsum("ij,ij->i", tj, ti)[:, None] * ti)
+    au = unit_rows(ti - np.einsum("ij,ij->i", ti, tj)[:, None] * tj)
+    av = unit_rows(tj - np.einsum("ij,ij->i", tj, ti)[:, None] * ti)
     i, j = np.meshgrid(np.arange(g.shape[0]), np.arange(g.shape[1]), indexing="ij")
     on_u = ((i == 0) | (i == g.shape[0] - 1)).ravel()
     on_v = ((j == 0) | (j == g.shape[1] - 1)).ravel()

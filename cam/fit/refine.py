@@ -23,9 +23,20 @@ __all__ = ["Refined", "split_spans", "refine_targets", "border_mask", "fit_refin
 
 @dataclass(frozen=True, eq=False)
 class Refined:
-    """What `fit_refined` returns: the best fit, the rounds tried, the fit on the knots given
-    (before any round; `fit` itself when no round was kept), and the best fit's
-    `cam.fit.measure.surface_peaks` (u, v, distance; empty where they were not searched for)."""
+    """What `fit_refined` returns.
+
+    Attributes
+    ----------
+    fit : SurfaceFit
+        The best fit.
+    rounds : int
+        The rounds tried.
+    unrefined : SurfaceFit
+        The fit on the knots given, before any round (`fit` itself when no round was kept).
+    peaks : tuple of three ndarray, each shape (k,), float64
+        The best fit's `cam.fit.measure.surface_peaks`: u, v (grid-index units) and distance (mm);
+        empty where they were not searched for.
+    """
 
     fit: SurfaceFit
     rounds: int
@@ -36,8 +47,21 @@ class Refined:
 def split_spans(knots: np.ndarray, params: np.ndarray, *, degree: int = 3, min_span: float = 0.125) -> np.ndarray:
     """`knots` with a knot added in the middle of every span that holds one of `params`.
 
-    Spans shorter than 2 * min_span are left alone (the refinement stops there).
-    Returns a new sorted float64 vector (the same length when nothing was split).
+    Parameters
+    ----------
+    knots : ndarray, shape (k,), float64
+        A clamped knot vector, parameter units.
+    params : ndarray, shape (m,), float64
+        Parameters whose spans are halved.
+    degree : int
+        The curve's degree.
+    min_span : float
+        Spans shorter than 2 * min_span are left alone (the refinement stops there).
+
+    Returns
+    -------
+    ndarray, shape (k + s,), float64
+        A new sorted knot vector with the s midpoints added (s = 0: a copy).
     """
     k = np.asarray(knots, dtype=np.float64)
     params = np.asarray(params, dtype=np.float64).ravel()
@@ -52,14 +76,44 @@ def split_spans(knots: np.ndarray, params: np.ndarray, *, degree: int = 3, min_s
 
 def refine_targets(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.ndarray, bad: np.ndarray, *,
                    degree: tuple[int, int] = (3, 3), min_span: float = 0.125) -> tuple[np.ndarray, np.ndarray]:
-    """Knot vectors with the u- and v-spans of the samples flagged `bad` halved (index units)."""
+    """Knot vectors with the u- and v-spans of the samples flagged `bad` halved.
+
+    Parameters
+    ----------
+    knots_u, knots_v : ndarray, shape (nu + p + 1,), (nv + q + 1,), float64
+        The surface's knot vectors, grid-index units.
+    u, v : ndarray, shape (n,), float64
+        The samples' parameters.
+    bad : ndarray, shape (n,), bool
+        The samples whose spans are halved.
+    degree : tuple of int
+        (p, q), the surface's degrees.
+    min_span : float
+        See `split_spans`.
+
+    Returns
+    -------
+    knots_u, knots_v : ndarray, float64
+        The new knot vectors (`split_spans` of each).
+    """
     bad = np.asarray(bad, dtype=bool)
     return (split_spans(knots_u, np.asarray(u)[bad], degree=degree[0], min_span=min_span),
             split_spans(knots_v, np.asarray(v)[bad], degree=degree[1], min_span=min_span))
 
 
 def border_mask(shape: tuple[int, int]) -> np.ndarray:
-    """bool (nu, nv): True on the outer ring of a control net (the four boundary curves)."""
+    """The outer ring of a control net (the four boundary curves).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (nu, nv), the net's size.
+
+    Returns
+    -------
+    ndarray, shape (nu, nv), bool
+        True on the first and last rows and columns.
+    """
     m = np.zeros(shape, dtype=bool)
     m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = True
     return m
@@ -71,18 +125,47 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 border_band: float = 0.5, check_cancel: CheckCancel | None = None, **options) -> Refined:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
-    fix_border keeps the outer ring of control points (knot insertion moves no boundary curve,
-    so the border stays the shared curves through every round); samples beyond a fixed border
-    are ignored (they belong to the neighbour). Spans are halved where samples are beyond the
-    tolerance, and where the surface is (with a `mesh` in the options: on the fit's lattice and, inside
-    fixed borders, at the peaks `cam.fit.measure.surface_peaks` finds between its points, which then
-    count in comparing rounds too, and are returned), except within `border_band` parameter units of a fixed border
-    (at most a quarter of the domain's narrower side, so a patch one quad wide still refines in its
-    middle) unless farther from the mesh than the border is. Two rounds in a row that each lower the
-    error beyond the tolerance (`SurfaceFit.excess`) of the best fit so far by less than the fraction
-    `min_gain` end the refinement. check_cancel() is called before every round and every step of
-    `fit_surface` (it raises to stop the fit).
-    Returns the best fit, the rounds used and the unrefined fit (`Refined`).
+    Spans are halved where samples are beyond the tolerance, and where the surface is (with a `mesh`
+    in the options: on the fit's lattice and, inside fixed borders, at the peaks
+    `cam.fit.measure.surface_peaks` finds between its points, which then count in comparing rounds
+    too, and are returned), except within `border_band` parameter units of a fixed border (at most a
+    quarter of the domain's narrower side, so a patch one quad wide still refines in its middle)
+    unless farther from the mesh than the border is. Two rounds in a row that each lower the error
+    beyond the tolerance (`SurfaceFit.excess`) of the best fit so far by less than the fraction
+    `min_gain` end the refinement.
+
+    Parameters
+    ----------
+    points, normals, u, v
+        The samples (n, 3) mm, their unit mesh normals (n, 3) and starting parameters (n,), float64:
+        see `cam.fit.solve.fit_surface`.
+    knots_u, knots_v : ndarray, shape (nu + 4,), (nv + 4,), float64
+        The knots to start with, grid-index units (quads).
+    control_points : ndarray, shape (nu, nv, 3), float64, or None
+        The start, mm (required with `fix_border`).
+    fix_border : bool
+        Keep the outer ring of control points (knot insertion moves no boundary curve, so the border
+        stays the shared curves through every round); samples beyond a fixed border are ignored (they
+        belong to the neighbour).
+    tolerance_mm : float
+        The distance the fit aims to stay within, mm.
+    max_refinements : int
+        Rounds of span halving at most.
+    min_span : float
+        Spans are never halved below this, grid-index units.
+    min_gain : float
+        See above: the fraction a round must gain.
+    border_band : float
+        See above, grid-index units.
+    check_cancel : callable or None
+        Called before every round and every step of `fit_surface`; it raises to stop the fit.
+    **options
+        Passed on to `cam.fit.solve.fit_surface` (mesh, anchors, weights...).
+
+    Returns
+    -------
+    Refined
+        The best fit, the rounds used, the unrefined fit and the best fit's peaks.
     """
     mode = "drop" if fix_border else "pull"
     cp = None if control_points is None else np.asarray(control_points, dtype=np.float64)
@@ -101,44 +184,16 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     while rounds < max_refinements and max(fit.max_error, peaks[2].max(initial=0.0)) > tolerance_mm:
         if check_cancel is not None:
             check_cancel()
-        bad = (fit.distance > tolerance_mm) & ~fit.clamped  # spans with data inside, not border reach
-        # Spans where the surface leaves the mesh: on the fit's lattice, and where the search between
-        # its points finds it (a fit within tolerance on the lattice can still be beyond it there).
-        su, sv = np.concatenate([fit.surface_u, peaks[0]]), np.concatenate([fit.surface_v, peaks[1]])
-        d = np.concatenate([fit.surface_distance, peaks[2]])
-        off = d > tolerance_mm
-        if fix_border:
-            # Along a fixed border the surface leaves the mesh as far as its boundary curve does,
-            # whatever the knots inside: halving those spans (whole knot lines, across the patch)
-            # would only narrow the band, round after round, at the cost of every row and column.
-            # Farther than the border itself is anywhere, though, the error is the surface's own
-            # (a ripple beside a flat border, left by the spans split for a bump inside).
-            off &= _inside(fit, su, sv, border_band) | (d > _border_distance(fit))
-        tu, tv = refine_targets(fit.knots_u, fit.knots_v, np.concatenate([fit.u, su]), np.concatenate([fit.v, sv]),
-                                np.concatenate([bad, off]), min_span=min_span)
+        tu, tv = _split_targets(fit, peaks, tolerance_mm=tolerance_mm, fix_border=fix_border,
+                                border_band=border_band, min_span=min_span)
         if tu.size == fit.knots_u.size and tv.size == fit.knots_v.size:
             break
-        ku, kv, cp = refine_surface(fit.knots_u, fit.knots_v, fit.control_points, target_u=tu, target_v=tv)
         rounds += 1
-        # A free refit starts warm (at the smoothing floor). A refit inside fixed borders takes the
-        # smoothing schedule from the top: warm, its new spans stalled a few hundredths of a mm
-        # over the tolerance round after round (a bump 0.9 mm wide: 0.085, 0.079, 0.074 mm), where
-        # one cold round brings it within.
-        # The peaks that asked for the new knots are measured and drawn onto the mesh in the refit too:
-        # judged on the lattice alone, a refit within tolerance there kept its start, the same surface
-        # to the last bit (Block's patch 5: 0.0341 mm at a peak beside a crease, round after round).
-        refit = fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
-                            fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
-                            clamped_samples=mode, warm=not fix_border,
-                            mesh_points=(peaks[0], peaks[1]) if peaks[0].size else None,
-                            check_cancel=check_cancel, **options)
+        refit = _refit_round(points, normals, fit, peaks, tu, tv, tolerance_mm=tolerance_mm, fix_border=fix_border,
+                             check_cancel=check_cancel, **options)
         refit_peaks = _peaks(mesh, refit)
-        improved = refit.folded <= best.folded and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm)
-        # Each round can multiply the control points by four; two rounds in a row that gain little
-        # mean the remaining error is not a lack of freedom (a border held by its curve, noise). One
-        # such round is not enough to tell: spans still wider than a feature gain little from the
-        # first split (a bump a tenth of its patch wide: 2 %, then within tolerance two rounds on).
-        enough = improved and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm, by=min_gain)
+        improved, enough = _judge_round(refit, refit_peaks, best, best_peaks, tolerance_mm=tolerance_mm,
+                                        min_gain=min_gain)
         if improved:
             best, best_peaks = refit, refit_peaks
         weak = 0 if enough else weak + 1
@@ -146,6 +201,56 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             break
         fit, peaks = refit, refit_peaks
     return Refined(best, rounds, first, best_peaks)
+
+
+def _split_targets(fit: SurfaceFit, peaks, *, tolerance_mm: float, fix_border: bool, border_band: float,
+                   min_span: float) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's knot vectors with the spans halved where samples, or the surface, are beyond the tolerance."""
+    bad = (fit.distance > tolerance_mm) & ~fit.clamped  # spans with data inside, not border reach
+    # Spans where the surface leaves the mesh: on the fit's lattice, and where the search between
+    # its points finds it (a fit within tolerance on the lattice can still be beyond it there).
+    su, sv = np.concatenate([fit.surface_u, peaks[0]]), np.concatenate([fit.surface_v, peaks[1]])
+    d = np.concatenate([fit.surface_distance, peaks[2]])
+    off = d > tolerance_mm
+    if fix_border:
+        # Along a fixed border the surface leaves the mesh as far as its boundary curve does,
+        # whatever the knots inside: halving those spans (whole knot lines, across the patch)
+        # would only narrow the band, round after round, at the cost of every row and column.
+        # Farther than the border itself is anywhere, though, the error is the surface's own
+        # (a ripple beside a flat border, left by the spans split for a bump inside).
+        off &= _inside(fit, su, sv, border_band) | (d > _border_distance(fit))
+    return refine_targets(fit.knots_u, fit.knots_v, np.concatenate([fit.u, su]), np.concatenate([fit.v, sv]),
+                          np.concatenate([bad, off]), min_span=min_span)
+
+
+def _refit_round(points, normals, fit: SurfaceFit, peaks, target_u, target_v, *, tolerance_mm: float,
+                 fix_border: bool, check_cancel: CheckCancel | None, **options) -> SurfaceFit:
+    """`fit_surface` again from the fit refined into the target knots by exact knot insertion."""
+    ku, kv, cp = refine_surface(fit.knots_u, fit.knots_v, fit.control_points, target_u=target_u, target_v=target_v)
+    # A free refit starts warm (at the smoothing floor). A refit inside fixed borders takes the
+    # smoothing schedule from the top: warm, its new spans stalled a few hundredths of a mm
+    # over the tolerance round after round (a bump 0.9 mm wide: 0.085, 0.079, 0.074 mm), where
+    # one cold round brings it within.
+    # The peaks that asked for the new knots are measured and drawn onto the mesh in the refit too:
+    # judged on the lattice alone, a refit within tolerance there kept its start, the same surface
+    # to the last bit (Block's patch 5: 0.0341 mm at a peak beside a crease, round after round).
+    return fit_surface(points, normals, fit.u, fit.v, knots_u=ku, knots_v=kv, control_points=cp,
+                       fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
+                       clamped_samples="drop" if fix_border else "pull", warm=not fix_border,
+                       mesh_points=(peaks[0], peaks[1]) if peaks[0].size else None,
+                       check_cancel=check_cancel, **options)
+
+
+def _judge_round(refit: SurfaceFit, refit_peaks, best: SurfaceFit, best_peaks, *, tolerance_mm: float,
+                 min_gain: float) -> tuple[bool, bool]:
+    """Whether a round's refit improves on the best fit at all, and by enough to go on."""
+    improved = refit.folded <= best.folded and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm)
+    # Each round can multiply the control points by four; two rounds in a row that gain little
+    # mean the remaining error is not a lack of freedom (a border held by its curve, noise). One
+    # such round is not enough to tell: spans still wider than a feature gain little from the
+    # first split (a bump a tenth of its patch wide: 2 %, then within tolerance two rounds on).
+    enough = improved and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm, by=min_gain)
+    return improved, enough
 
 
 def _peaks(mesh, fit: SurfaceFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -14,6 +14,36 @@ __all__ = ["DIALECTS", "Dialect", "get_dialect"]
 
 @dataclass(frozen=True)
 class Dialect:
+    """The rules of one controller's G-code dialect.
+
+    Attributes
+    ----------
+    name : str
+        Key in `DIALECTS`.
+    modal_reset : str
+        The line that sets the modal state at the start (plane, mm, no compensation, absolute, ...).
+    tool_change : str or None
+        Tool change line, formatted with t = tool number; None without a tool changer.
+    length_offset : str or None
+        Tool length offset line, formatted with t = tool number and z = clearance height (mm); None
+        where the controller takes none.
+    spindle_on : str
+        Formatted with s = spindle speed (rev/min).
+    spindle_off : str
+        Spindle stop line.
+    end : str
+        Program end line.
+    percent : bool
+        Whether '%' is the first and last line.
+    program_number : str or None
+        Program number line, formatted with n; None for none.
+    upper_comments : bool
+        Whether comments are written in upper case.
+    max_line : int or None
+        Longest line the controller reads, in characters; None for no limit.
+    decimals : int
+        Decimals of coordinates (mm).
+    """
     name: str
     modal_reset: str
     tool_change: str | None  # format with t=tool number
@@ -40,7 +70,23 @@ DIALECTS = {
 
 
 def get_dialect(name: str) -> Dialect:
-    """The dialect table by name; ValueError naming the known ones."""
+    """The dialect table by name.
+
+    Parameters
+    ----------
+    name : str
+        A key of `DIALECTS`: "linuxcnc", "grbl" or "fanuc".
+
+    Returns
+    -------
+    dialect : Dialect
+        Its rules.
+
+    Raises
+    ------
+    ValueError
+        For an unknown name, naming the known ones.
+    """
     try:
         return DIALECTS[name]
     except KeyError:

@@ -16,8 +16,20 @@ RAPID, PLUNGE, FEED = 0, 1, 2
 
 @dataclass(frozen=True)
 class MoveList:
-    """Targets of the moves after the start at (x0, y0, clearance_z): points float64 (n, 3) tool tips mm;
-    kind int8 (n,) RAPID | PLUNGE | FEED; patch int64 (n,) patch id of cutting moves, −1 otherwise."""
+    """The moves of one setup's program: targets after the start at (x0, y0, clearance_z), where x0, y0 are
+    the first target's.
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+        Tool-tip targets in mm, machine frame.
+    kind : (n,) int8
+        RAPID, PLUNGE or FEED: how each target is reached.
+    patch : (n,) int64
+        Patch id of cutting moves, −1 otherwise.
+    clearance_z : float
+        Safe height in mm, machine frame.
+    """
 
     points: np.ndarray
     kind: np.ndarray
@@ -25,7 +37,14 @@ class MoveList:
     clearance_z: float
 
     def stats(self) -> dict[str, float]:
-        """Cutting and air lengths (mm) and the number of retracts."""
+        """Cutting and air lengths and the number of retracts.
+
+        Returns
+        -------
+        stats : dict
+            ``cut_length_mm`` (FEED moves) and ``air_length_mm`` (the rest), from the start, in mm, and
+            ``retracts``: rapid moves to clearance height that follow a move that is not one.
+        """
         if not len(self.points):
             return {"cut_length_mm": 0.0, "air_length_mm": 0.0, "retracts": 0}
         start = np.array([[self.points[0, 0], self.points[0, 1], self.clearance_z]])

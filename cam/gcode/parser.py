@@ -25,8 +25,21 @@ class GCodeError(ValueError):
 
 @dataclass(frozen=True)
 class ParsedProgram:
-    """start, end: float64 (m, 3) tool tips (mm, machine frame) of each straight move; rapid: bool (m,);
-    feed: float64 (m,) mm/min (NaN for rapids); line: int64 (m,) 1-based source line; comments: list[str]."""
+    """The straight moves of a program, in order, and its comments.
+
+    Attributes
+    ----------
+    start, end : (m, 3) float64
+        Tool tips (mm, machine frame) at the start and end of each straight move.
+    rapid : (m,) bool
+        True for G0 moves.
+    feed : (m,) float64
+        Feed rate in mm/min; NaN for rapids.
+    line : (m,) int64
+        1-based source line of each move.
+    comments : list of str
+        The text of every comment, in order.
+    """
 
     start: np.ndarray
     end: np.ndarray
@@ -36,7 +49,18 @@ class ParsedProgram:
     comments: list[str]
 
     def header_value(self, key: str) -> str | None:
-        """The value of a 'key: value' header comment (case-insensitive), or None."""
+        """The value of a 'key: value' header comment (case-insensitive), or None.
+
+        Parameters
+        ----------
+        key : str
+            The key, such as ``certified scallop bound``.
+
+        Returns
+        -------
+        value : str or None
+            The stripped text after the first ':' of the first matching comment.
+        """
         for c in self.comments:
             k, sep, v = c.partition(":")
             if sep and k.strip().lower() == key.lower():
@@ -64,7 +88,28 @@ def _strip(line: str, comments: list[str]) -> str:
 
 
 def parse_program(text: str) -> ParsedProgram:
-    """Moves of a program text; raises GCodeError for what it does not model."""
+    """The straight moves of a program text.
+
+    Follows G0/G1, G90/G91, G20/G21 (inches become mm, feeds too) and F; moves made before all three
+    axes are known only set the position.
+
+    Parameters
+    ----------
+    text : str
+        The program.
+
+    Returns
+    -------
+    program : ParsedProgram
+        Its moves and comments.
+
+    Raises
+    ------
+    GCodeError
+        For what it does not model, naming the line: block delete, unreadable words, arcs, canned cycles,
+        probing, machine coordinates or offsets, rotary or extra axes, a coordinate without a motion
+        mode, or G1 without a feed rate.
+    """
     comments: list[str] = []
     pos = np.full(3, np.nan)
     motion, absolute, scale, feed = None, True, 1.0, np.nan

@@ -11,7 +11,18 @@ __all__ = ["Setup"]
 
 @dataclass(frozen=True, eq=False)
 class Setup:
-    """machine point = rotation · part point + translation; tool axis = machine +Z."""
+    """How the part sits on the machine: machine point = rotation · part point + translation; tool axis =
+    machine +Z.
+
+    Attributes
+    ----------
+    id : int
+        The setup id of `setup.json`.
+    rotation : (3, 3) float64
+        Proper rotation from the part frame to the machine frame.
+    translation : (3,) float64
+        In mm.
+    """
 
     id: int
     rotation: np.ndarray
@@ -19,9 +30,20 @@ class Setup:
 
     @property
     def tool_axis_part(self) -> np.ndarray:
-        """The tool axis (machine +Z) in the part frame: float64 (3,), unit."""
+        """The tool axis (machine +Z) in the part frame: (3,) float64, unit."""
         return self.rotation.T @ np.array([0.0, 0.0, 1.0])
 
     def to_part(self, point: np.ndarray) -> np.ndarray:
-        """The part-frame point (float64 (3,), mm) of a machine-frame one."""
+        """The part-frame point of a machine-frame one.
+
+        Parameters
+        ----------
+        point : (3,) array_like of float
+            Machine-frame point in mm.
+
+        Returns
+        -------
+        point : (3,) float64
+            Part-frame point in mm.
+        """
         return self.rotation.T @ (np.asarray(point, dtype=np.float64) - self.translation)

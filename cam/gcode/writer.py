@@ -38,7 +38,37 @@ def write_program(moves: MoveList, *, dialect: str | Dialect = "linuxcnc", heade
                   plunge_mm_min: float = 300.0, program_number: int = 1) -> str:
     """The program text (lines joined with '\\n', ending in a newline).
 
-    header: ordered key → value pairs written as comments ("key: value"); moves: see `MoveList`.
+    Parameters
+    ----------
+    moves : MoveList
+        The moves (tool tips, mm, machine frame).
+    dialect : str or Dialect, optional
+        The dialect or its name (default "linuxcnc").
+    header : dict of str to str
+        Ordered key → value pairs written as comments ("key: value").
+    tool_number : int, optional
+        1..99999 (default 1).
+    spindle_rpm : float, optional
+        Spindle speed in rev/min, > 0 (default 12000).
+    feed_mm_min : float, optional
+        Feed rate of FEED moves in mm/min, > 0 (default 1200).
+    plunge_mm_min : float, optional
+        Feed rate of PLUNGE moves in mm/min, > 0 (default 300).
+    program_number : int, optional
+        The O number, for dialects that write one (default 1).
+
+    Returns
+    -------
+    text : str
+        The G-code program.
+
+    Raises
+    ------
+    ValueError
+        For an unknown dialect name, a tool number outside 1..99999, or a rate that is not a positive
+        number.
+    RuntimeError
+        When a line is longer than the dialect allows.
     """
     d = dialect if isinstance(dialect, Dialect) else get_dialect(dialect)
     if not 1 <= int(tool_number) <= 99999:

@@ -10,7 +10,23 @@ __all__ = ["read_bytes"]
 
 
 def read_bytes(path: str | os.PathLike[str]) -> bytes:
-    """Return the file's bytes; a missing file or a directory is a ReadError naming the path."""
+    """Return a whole file's bytes.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to read.
+
+    Returns
+    -------
+    data : bytes
+        The file's content.
+
+    Raises
+    ------
+    ReadError
+        For a missing file or a directory, naming the path.
+    """
     try:
         with open(path, "rb") as handle:
             return handle.read()

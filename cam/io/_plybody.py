@@ -21,7 +21,26 @@ _STRUCT_CODES = {"i1": "b", "u1": "B", "i2": "h", "u2": "H", "i4": "i", "u4": "I
 
 
 def read_binary_elements(data: bytes, header: PlyHeader) -> dict[str, dict]:
-    """Decode every element of a binary PLY body, in header order."""
+    """Decode every element of a binary PLY body, in header order.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole file's bytes.
+    header : PlyHeader
+        Its parsed header, of a binary format.
+
+    Returns
+    -------
+    elements : dict of str to dict
+        Per element name, per property name: a (count,) array of the declared type (native byte order),
+        or for a list property a ``(counts, flat)`` pair (see the module docstring).
+
+    Raises
+    ------
+    ReadError
+        When the body is shorter than the header declares, or a list length is negative.
+    """
     endian = "<" if header.format == "binary_little_endian" else ">"
     offset = header.body_offset
     elements: dict[str, dict] = {}
@@ -35,7 +54,29 @@ def read_binary_elements(data: bytes, header: PlyHeader) -> dict[str, dict]:
 
 
 def read_ascii_elements(data: bytes, header: PlyHeader) -> dict[str, dict]:
-    """Decode every element of an ascii PLY body (one record per line), in header order."""
+    """Decode every element of an ascii PLY body (one record per line), in header order.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole file's bytes.
+    header : PlyHeader
+        Its parsed header, of the ascii format.
+
+    Returns
+    -------
+    elements : dict of str to dict
+        Per element name, per property name: a (count,) array (float properties of their declared type,
+        integer ones as int64), or for a list property a ``(counts, flat)`` pair (see the module
+        docstring).
+
+    Raises
+    ------
+    ReadError
+        When the body has fewer records than declared, or a line holds too few or too many values, a
+        value that is not a number, or a non-integer for an integer property (the message names the
+        line or property).
+    """
     body = data[header.body_offset :].replace(b"\r\n", b"\n")
     numbered = [(i, line) for i, line in enumerate(body.split(b"\n")) if line.strip()]
     first_line = header.line_count + 1

@@ -29,7 +29,17 @@ _END_HEADER = re.compile(rb"^end_header[ \t]*(?:\r?\n|\Z)", re.MULTILINE)
 
 @dataclass(frozen=True)
 class PlyProperty:
-    """One property: a scalar of ``code``, or a list of ``code`` items led by a ``count_code`` count."""
+    """One property: a scalar of ``code``, or a list of ``code`` items led by a ``count_code`` count.
+
+    Attributes
+    ----------
+    name : str
+        The property name.
+    code : str
+        numpy type code of the value or of the list items, without byte order (see `PLY_TYPES`).
+    count_code : str or None
+        numpy type code of a list's count (an integer type); None for a scalar.
+    """
 
     name: str
     code: str
@@ -37,26 +47,55 @@ class PlyProperty:
 
     @property
     def is_list(self) -> bool:
+        """True for a list property."""
         return self.count_code is not None
 
 
 @dataclass
 class PlyElement:
+    """One element of a PLY header and its properties, in file order.
+
+    Attributes
+    ----------
+    name : str
+        The element name, such as ``vertex`` or ``face``.
+    count : int
+        Number of records.
+    properties : list of PlyProperty
+        The properties of each record.
+    """
     name: str
     count: int
     properties: list[PlyProperty] = field(default_factory=list)
 
     @property
     def names(self) -> list[str]:
+        """The property names, in order."""
         return [p.name for p in self.properties]
 
     @property
     def has_lists(self) -> bool:
+        """True when some property is a list (records may then vary in length)."""
         return any(p.is_list for p in self.properties)
 
 
 @dataclass
 class PlyHeader:
+    """A parsed PLY header.
+
+    Attributes
+    ----------
+    format : str
+        ``ascii``, ``binary_little_endian`` or ``binary_big_endian``.
+    elements : list of PlyElement
+        The elements in file order.
+    comments : list of str
+        The ``comment`` and ``obj_info`` lines' text, in order.
+    body_offset : int
+        Byte offset of the body, just past the ``end_header`` line.
+    line_count : int
+        Number of text lines in the header, so ascii body errors can name file line numbers.
+    """
     format: str
     elements: list[PlyElement]
     comments: list[str]
@@ -65,11 +104,46 @@ class PlyHeader:
     line_count: int
 
     def element(self, name: str) -> PlyElement:
+        """The element called `name`.
+
+        Parameters
+        ----------
+        name : str
+            Element name.
+
+        Returns
+        -------
+        element : PlyElement
+            The first element of that name.
+
+        Raises
+        ------
+        StopIteration
+            When the header has no such element.
+        """
         return next(e for e in self.elements if e.name == name)
 
 
 def parse_header(data: bytes) -> PlyHeader:
-    """Parse the header at the start of ``data`` (the whole file's bytes)."""
+    """Parse the header at the start of ``data`` (the whole file's bytes).
+
+    Parameters
+    ----------
+    data : bytes
+        The file's content.
+
+    Returns
+    -------
+    header : PlyHeader
+        Format, elements, comments and where the body starts.
+
+    Raises
+    ------
+    ReadError
+        When the file does not start with ``ply``, has no ``end_header`` in its first 1 MiB, holds a
+        non-ASCII header byte, an unknown keyword or type, a malformed format, element or property line,
+        a property before any element, no format line, or an element declared twice.
+    """
     if not re.match(rb"ply[ \t]*\r?\n", data):
         raise ReadError("the file does not start with the line 'ply'; it is not a PLY file")
     end = _END_HEADER.search(data, 0, _MAX_HEADER_BYTES)

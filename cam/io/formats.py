@@ -70,20 +70,24 @@ def sniff_format(head: bytes, *, total_size: int | None = None) -> str | None:
 
     Parameters
     ----------
-    head
-        The first bytes of the file, ideally :data:`SNIFF_BYTES` of them (or the
-        whole file when it is shorter).
-    total_size
-        The file's full size in bytes, when known. Binary STL is then accepted
-        only when the size is exactly ``84 + 50 * triangle_count``; a head
-        shorter than :data:`SNIFF_BYTES` without ``total_size`` is taken to
-        be the whole file.
+    head : bytes
+        The first bytes of the file (bytes, bytearray or memoryview), ideally :data:`SNIFF_BYTES` of them
+        (or the whole file when it is shorter). A UTF-8 byte order mark is skipped.
+    total_size : int or None, optional
+        The file's full size in bytes, when known. Binary STL is then accepted only when the size is
+        exactly ``84 + 50 * triangle_count``; a head shorter than :data:`SNIFF_BYTES` without
+        ``total_size`` is taken to be the whole file.
 
     Returns
     -------
-    One of ``"ply"``, ``"obj"``, ``"stl_ascii"``, ``"stl_binary"``, ``"pcd"``,
-    ``"xyz"`` (numeric text columns: XYZ, PTS, TXT, CSV), or ``None`` when the
-    bytes are none of these.
+    format : str or None
+        One of ``"ply"``, ``"obj"``, ``"stl_ascii"``, ``"stl_binary"``, ``"pcd"``, ``"xyz"`` (numeric
+        text columns: XYZ, PTS, TXT, CSV), or ``None`` when the bytes are none of these.
+
+    Raises
+    ------
+    TypeError
+        When `head` is not bytes-like.
     """
     if not isinstance(head, (bytes, bytearray, memoryview)):
         raise TypeError(f"sniff_format needs bytes, got {type(head).__name__}")
@@ -125,8 +129,16 @@ def sniff_format(head: bytes, *, total_size: int | None = None) -> str | None:
 def describe_unsupported(head: bytes) -> str | None:
     """Say what a refused upload seems to be, so the error can tell the user what to do.
 
-    Returns a short clause such as ``"a ZIP archive; unpack it and upload the
-    point cloud inside"``, or ``None`` when nothing is recognised.
+    Parameters
+    ----------
+    head : bytes
+        The first bytes of the file; only the first 64 are looked at.
+
+    Returns
+    -------
+    description : str or None
+        A short clause such as ``"a ZIP archive; unpack it and upload the point cloud inside"``, or
+        ``None`` when nothing is recognised.
     """
     head = bytes(head[:64])
     known = [

@@ -33,8 +33,34 @@ _PARAM_COLS = 64
 def write_iges(path: str | os.PathLike[str], surfaces: Sequence, *, labels: Sequence[int] | None = None,
                created: datetime | None = None, author: str = "cloud2cnc", organization: str = "",
                product: str = "cloud2cnc surfaces") -> Path:
-    """Write `surfaces` (objects with degree, knots_u, knots_v, control_points (nu, nv, 3) in mm, like
-    `cam.spline.surface.BSplineSurface`) to `path` atomically; see `iges_bytes`."""
+    """Write surfaces to `path` atomically as an IGES 5.3 file; see `iges_bytes`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The target file; its name is stored in the Global section.
+    surfaces : sequence
+        Objects with degree, knots_u, knots_v, control_points (nu, nv, 3) in mm, like
+        `cam.spline.surface.BSplineSurface`.
+    labels : sequence of int or None, optional
+        An integer per surface stored as its entity subscript (the patch id; default the index).
+    created : datetime or None, optional
+        The file's timestamp (default now, UTC).
+    author, organization : str, optional
+        Stored in the Global section ("unknown" when empty).
+    product : str, optional
+        Stored in the Start and Global sections.
+
+    Returns
+    -------
+    path : pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        As `iges_bytes`.
+    """
     data = iges_bytes(surfaces, labels=labels, created=created, author=author, organization=organization,
                       product=product, filename=Path(path).name)
     return atomic_write(path, [data])
@@ -45,9 +71,34 @@ def iges_bytes(surfaces: Sequence, *, labels: Sequence[int] | None = None, creat
                filename: str = "surfaces.igs") -> bytes:
     """The IGES 5.3 file as bytes (ASCII, CRLF-free, 80 columns).
 
-    labels: an integer per surface stored as its entity subscript (the patch id; default the
-    index); created: the file's timestamp (default now, UTC).
-    Raises ValueError for a surface that is not a clamped B-spline with finite coordinates.
+    Parameters
+    ----------
+    surfaces : sequence
+        Objects with degree (p, q), knots_u (nu + p + 1,), knots_v (nv + q + 1,) and control_points
+        (nu, nv, 3) in mm, like `cam.spline.surface.BSplineSurface`: clamped B-splines with finite
+        coordinates. Each becomes one entity 128 with every weight 1.
+    labels : sequence of int or None, optional
+        An integer per surface stored as its entity subscript (the patch id; default the index).
+    created : datetime or None, optional
+        The file's timestamp (default now, UTC).
+    author, organization : str, optional
+        Stored in the Global section ("unknown" when empty).
+    product : str, optional
+        Stored in the Start and Global sections.
+    filename : str, optional
+        The file name stored in the Global section (default "surfaces.igs").
+
+    Returns
+    -------
+    data : bytes
+        The file, lines ending in '\\n'; units millimetres.
+
+    Raises
+    ------
+    ValueError
+        For a label count that differs from the surface count, control points not shaped (nu, nv, 3),
+        knot counts that do not fit them, a non-finite knot or coordinate, or a text field too long for
+        an IGES line.
     """
     labels = list(range(len(surfaces))) if labels is None else [int(x) for x in labels]
     if len(labels) != len(surfaces):

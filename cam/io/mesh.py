@@ -27,24 +27,29 @@ _STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("
 def read_obj(path: str | os.PathLike[str]) -> InputData:
     """Read a Wavefront OBJ file.
 
-    ``v`` lines give the vertices (a 4th ``w`` value is ignored; 6 values are
-    x y z r g b with colours in 0..1 or 0..255), ``f`` lines the faces in any of
-    the corner forms ``v``, ``v/vt``, ``v//vn``, ``v/vt/vn`` with 1-based or
-    negative (relative) indices; polygons are fan triangulated. Lines, points,
-    groups, materials and texture coordinates are ignored.
+    ``v`` lines give the vertices (a 4th ``w`` value is ignored; 6 values are x y z r g b with colours in
+    0..1 or 0..255), ``f`` lines the faces in any of the corner forms ``v``, ``v/vt``, ``v//vn``,
+    ``v/vt/vn`` with 1-based or negative (relative) indices; polygons are fan triangulated. Lines,
+    points, groups, materials and texture coordinates are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The OBJ file.
 
     Returns
     -------
-    :class:`~cam.io.records.InputData`; ``faces`` int64 (m, 3) or None when the
-    file has no faces (a point cloud). ``normals`` float64 (n, 3) only for a
-    point cloud whose ``vn`` count equals its ``v`` count (a mesh's per-corner
-    normals are not carried over: the faces define its normals).
+    data : InputData
+        ``points`` (n, 3) float64; ``colors`` (n, 3) uint8 when every ``v`` line has 6 values; ``faces``
+        (m, 3) int64, or None when the file has no faces (a point cloud). ``normals`` (n, 3) float64 only
+        for a point cloud whose ``vn`` count equals its ``v`` count (a mesh's per-corner normals are not
+        carried over: the faces define its normals).
 
     Raises
     ------
     ReadError
-        For no vertices, a malformed ``v`` or ``f`` line (the message names the
-        line), or a face index outside the vertices defined before it.
+        For a missing file, no vertices, a malformed ``v`` or ``f`` line (the message names the line),
+        or a face index outside the vertices defined before it.
     """
     data = read_bytes(path).replace(b"\r", b"")
     lines = data.split(b"\n")
@@ -80,19 +85,26 @@ def read_obj(path: str | os.PathLike[str]) -> InputData:
 def read_stl(path: str | os.PathLike[str]) -> InputData:
     """Read an ASCII or binary STL file as an indexed triangle mesh.
 
-    Identical corner coordinates are merged into one vertex (bit-exact, with
-    -0.0 equal to 0.0), so a closed STL reads as a watertight mesh.
+    Identical corner coordinates are merged into one vertex (bit-exact, with -0.0 equal to 0.0), so a
+    closed STL reads as a watertight mesh.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The STL file.
 
     Returns
     -------
-    :class:`~cam.io.records.InputData` with ``points`` float64 (n, 3) and
-    ``faces`` int64 (m, 3); ``format`` is ``"stl_ascii"`` or ``"stl_binary"``.
+    data : InputData
+        ``points`` (n, 3) float64 and ``faces`` (m, 3) int64; ``format`` is ``"stl_ascii"`` or
+        ``"stl_binary"``.
 
     Raises
     ------
     ReadError
-        For a binary STL shorter than its triangle count says, or an ASCII STL
-        whose facets do not hold three vertices each.
+        For a missing file, a binary STL shorter than its header or its triangle count says or with no
+        triangles, or an ASCII STL without vertices, with a non-numeric vertex value, or whose facets do
+        not hold three vertices each.
     """
     data = read_bytes(path)
     kind = sniff_format(data[:65536], total_size=len(data))

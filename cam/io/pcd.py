@@ -22,19 +22,24 @@ _NORMALS = ("normal_x", "normal_y", "normal_z")
 def read_pcd(path: str | os.PathLike[str]) -> InputData:
     """Read a PCD file with ``DATA ascii`` or ``DATA binary``.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PCD file.
+
     Returns
     -------
-    :class:`~cam.io.records.InputData` with ``points`` float64 (n, 3) from
-    fields ``x y z``, ``normals`` float64 (n, 3) from ``normal_x normal_y
-    normal_z`` when present, ``colors`` uint8 (n, 3) from a packed ``rgb`` or
-    ``rgba`` field when present; other fields are ignored. Organised clouds
-    keep their NaN placeholder points (ingest drops and counts them).
+    data : InputData
+        ``points`` (n, 3) float64 from fields ``x y z``, ``normals`` (n, 3) float64 from ``normal_x
+        normal_y normal_z`` when present, ``colors`` (n, 3) uint8 from a packed ``rgb`` or ``rgba``
+        field when present; other fields are ignored. Organised clouds keep their NaN placeholder points
+        (ingest drops and counts them). The header's ``#`` lines become ``comments``.
 
     Raises
     ------
     ReadError
-        For ``DATA binary_compressed`` (with how to convert), a malformed
-        header, missing x/y/z fields, or a body shorter than ``POINTS``.
+        For a missing file, ``DATA binary_compressed`` (with how to convert) or an unknown ``DATA``, a
+        malformed header, missing x/y/z fields, or a body shorter than ``POINTS``.
     """
     data = read_bytes(path)
     header, body_offset = _parse_header(data)

@@ -33,23 +33,26 @@ _FACE_LIST_NAMES = ("vertex_indices", "vertex_index")
 
 
 def read_ply(path: str | os.PathLike[str]) -> InputData:
-    """Read a PLY point cloud or mesh.
+    """Read a PLY point cloud or mesh (ascii, binary little- or big-endian).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PLY file.
 
     Returns
     -------
-    :class:`~cam.io.records.InputData` with ``points`` float64 (n, 3),
-    ``normals`` float64 (n, 3) when the vertices carry ``nx ny nz``,
-    ``colors`` uint8 (n, 3) when they carry ``red green blue`` (float colours
-    in 0..1 are scaled to 0..255), and ``faces`` int64 (m, 3) when a ``face``
-    element holds at least one polygon (polygons are fan triangulated).
-    Other vertex properties and other elements are skipped.
+    data : InputData
+        ``points`` (n, 3) float64, ``normals`` (n, 3) float64 when the vertices carry ``nx ny nz``,
+        ``colors`` (n, 3) uint8 when they carry ``red green blue`` (float colours in 0..1 are scaled to
+        0..255), and ``faces`` (m, 3) int64 when a ``face`` element holds at least one polygon (polygons
+        are fan triangulated). Other vertex properties and other elements are skipped.
 
     Raises
     ------
     ReadError
-        For a missing or malformed header, an unknown format, a body shorter
-        than the header claims, a non-numeric ascii value, or a face index
-        outside the vertex range.
+        For a missing file, a missing or malformed header, an unknown format, a body shorter than the
+        header claims, a non-numeric ascii value, or a face index outside the vertex range.
     """
     data = read_bytes(path)
     header = parse_header(data)
@@ -71,16 +74,25 @@ def write_ply_points(
 
     Parameters
     ----------
-    points
-        (n, 3) finite coordinates, mm; written as double.
-    normals
-        (n, 3) finite normals or None; written as float.
-    comments
-        Header comment lines (no line breaks).
+    path : str or os.PathLike
+        The target file.
+    points : (n, 3) array_like of numbers
+        Finite coordinates, mm; written as double.
+    normals : (n, 3) array_like of numbers or None, optional
+        Finite normals, one per point; written as float.
+    comments : sequence of str, optional
+        Header comment lines (ASCII, no line breaks).
 
     Returns
     -------
-    The path written, as a Path.
+    path : pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    WriteError
+        For arrays of the wrong shape or type, NaN or Inf values, a normal count that differs from the
+        point count, or a comment with a line break or non-ASCII text.
     """
     pts = _finite_rows("points", points)
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
@@ -110,17 +122,26 @@ def write_ply_mesh(
 
     Parameters
     ----------
-    vertices
-        (n, 3) finite coordinates, mm; written as double.
-    faces
-        (m, 3) integer vertex indices in ``[0, n)``; written as a uchar count
-        and int32 indices, the layout most tools read fastest.
-    comments
-        Header comment lines (no line breaks).
+    path : str or os.PathLike
+        The target file.
+    vertices : (n, 3) array_like of numbers
+        Finite coordinates, mm; written as double.
+    faces : (m, 3) array_like of int
+        Vertex indices in ``[0, n)``; written as a uchar count and int32 indices, the layout most tools
+        read fastest.
+    comments : sequence of str, optional
+        Header comment lines (ASCII, no line breaks).
 
     Returns
     -------
-    The path written, as a Path.
+    path : pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    WriteError
+        For arrays of the wrong shape or type, NaN or Inf coordinates, an index outside the vertices, or
+        a comment with a line break or non-ASCII text.
     """
     verts = _finite_rows("vertices", vertices)
     tris = np.asarray(faces)

@@ -12,19 +12,18 @@ def fan_triangulate(counts: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, i
 
     Parameters
     ----------
-    counts
-        int (m,): number of corners of each polygon.
-    flat
-        int (counts.sum(),): the corners of all polygons, concatenated.
+    counts : (m,) array_like of int
+        Number of corners of each polygon.
+    flat : (counts.sum(),) array_like of int
+        The corners of all polygons, concatenated.
 
     Returns
     -------
-    faces
-        int64 (t, 3): polygon ``(v0, v1, ..., vk)`` becomes ``(v0, vi, vi+1)``
-        for ``i = 1..k-2``; triangles of one polygon are consecutive and
-        polygons keep their order. Fans are exact for the convex, planar
+    faces : (t, 3) int64
+        Polygon ``(v0, v1, ..., vk)`` becomes ``(v0, vi, vi+1)`` for ``i = 1..k-2``; triangles of one
+        polygon are consecutive and polygons keep their order. Fans are exact for the convex, planar
         polygons that CAD and scanner software export.
-    skipped
+    skipped : int
         How many polygons had fewer than 3 corners and produced nothing.
     """
     counts = np.asarray(counts, dtype=np.int64)

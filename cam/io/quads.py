@@ -48,14 +48,25 @@ def write_quad_obj(
 
     Parameters
     ----------
-    vertices
-        float (n, 3), mm; written with 17 significant digits so that reading
-        the file back gives the same doubles.
-    faces
-        int (m, 4): vertex indices of each quad in counter-clockwise order
-        seen from outside.
-    comments
+    path : str or os.PathLike
+        The target file.
+    vertices : (n, 3) array_like of float
+        Coordinates in mm; written with 17 significant digits so that reading the file back gives the
+        same doubles.
+    faces : (m, 4) array_like of int
+        Vertex indices of each quad in counter-clockwise order seen from outside.
+    comments : sequence of str, optional
         Lines written as ``# ...`` at the top (no line breaks).
+
+    Returns
+    -------
+    path : pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    WriteError
+        For arrays of the wrong shape or type, non-finite coordinates, or an index outside the vertices.
     """
     verts, quads = _check_quads(vertices, faces)
     head = "".join(f"# {c}\n" for c in comments).encode()
@@ -67,16 +78,25 @@ def write_quad_obj(
 def read_quad_obj(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """Read an OBJ whose faces are all quads.
 
+    Corner forms ``v/vt/vn`` are accepted; negative (relative) indices are resolved.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The OBJ file.
+
     Returns
     -------
-    vertices float64 (n, 3) and faces int64 (m, 4), 0-based. Corner forms
-    ``v/vt/vn`` are accepted; negative (relative) indices are resolved.
+    vertices : (n, 3) float64
+        Coordinates as in the file (mm for our files).
+    faces : (m, 4) int64
+        0-based vertex indices of each quad.
 
     Raises
     ------
     ReadError
-        For a face that is not a quad (the message gives its line), a
-        malformed number, an index outside the vertices, or no faces.
+        For an unreadable file, a face that is not a quad (the message gives its line), a malformed
+        number, an index outside the vertices, or no faces.
     """
     try:
         text = Path(path).read_bytes().decode("utf-8", errors="replace")
@@ -126,15 +146,30 @@ def write_ply_quads_colored(
 
     Parameters
     ----------
-    vertices
-        float (n, 3), mm; written as double.
-    faces
-        int (m, 4) vertex indices.
-    colors
-        uint8-compatible (m, 3): the colour of each face (red, green, blue).
-    labels
-        Optional int (m,): written as a face property ``patch`` so viewers and
-        tests can read the segmentation back exactly (-1 = no patch, e.g. base).
+    path : str or os.PathLike
+        The target file.
+    vertices : (n, 3) array_like of float
+        Coordinates in mm; written as double.
+    faces : (m, 4) array_like of int
+        Vertex indices of each quad.
+    colors : (m, 3) array_like of int
+        The colour of each face (red, green, blue) in 0..255; written as uchar.
+    labels : (m,) array_like of int or None, optional
+        Written as a face property ``patch`` (int32) so viewers and tests can read the segmentation back
+        exactly (-1 = no patch, e.g. base).
+    comments : sequence of str, optional
+        Header comment lines (ASCII, no line breaks).
+
+    Returns
+    -------
+    path : pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    WriteError
+        For arrays of the wrong shape or type, non-finite coordinates, an index outside the vertices,
+        colours outside 0..255, or a comment with a line break or non-ASCII text.
     """
     verts, quads = _check_quads(vertices, faces)
     rgb = np.asarray(colors)

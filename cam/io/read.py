@@ -29,19 +29,24 @@ _READERS: dict[str, Callable[[str | os.PathLike[str]], InputData]] = {
 def read_input(path: str | os.PathLike[str]) -> InputData:
     """Read a point cloud or mesh upload of any supported format.
 
-    The format comes from the first :data:`~cam.io.formats.SNIFF_BYTES` bytes
-    and the file size, never from the file name, so a renamed or extension-less
-    upload reads the same.
+    The format comes from the first :data:`~cam.io.formats.SNIFF_BYTES` bytes and the file size, never
+    from the file name, so a renamed or extension-less upload reads the same.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The uploaded file.
 
     Returns
     -------
-    :class:`~cam.io.records.InputData`; ``faces`` is None for a point cloud.
+    data : InputData
+        See :class:`~cam.io.records.InputData`; ``faces`` is None for a point cloud.
 
     Raises
     ------
     ReadError
-        For an empty file, a format we do not read (saying what it looks like
-        when it can), or any reader's complaint about the content.
+        For a missing file or a directory, an empty file, a format we do not read (saying what it looks
+        like when it can), a file that holds no points, or any reader's complaint about the content.
     """
     target = Path(path)
     try:

@@ -15,23 +15,23 @@ class InputData:
 
     Attributes
     ----------
-    points
-        float64 (n, 3): point or vertex coordinates. Non-finite rows are kept;
-        :func:`cam.ingest.clean.clean_cloud` drops and counts them.
-    normals
-        float64 (n, 3) or None: per-point normals as stored (not normalised).
-    colors
-        uint8 (n, 3) or None: per-point RGB.
-    faces
-        int64 (m, 3) or None: triangles indexing ``points`` (polygons are fan
-        triangulated). None means the file is a point cloud.
-    format
+    points : (n, 3) float64
+        Point or vertex coordinates. Non-finite rows are kept; :func:`cam.ingest.clean.clean_cloud` drops
+        and counts them.
+    normals : (n, 3) float64 or None
+        Per-point normals as stored (not normalised).
+    colors : (n, 3) uint8 or None
+        Per-point RGB.
+    faces : (m, 3) int64 or None
+        Triangles indexing ``points`` (polygons are fan triangulated). None means the file is a point
+        cloud.
+    format : str
         The sniffed format name (see :data:`cam.io.formats.FORMATS`).
-    comments
+    comments : tuple of str
         The file's own comment or header lines, in order.
-    notes
-        What the reader decided that a user may want to know (columns ignored,
-        polygons triangulated, ...), as sentences.
+    notes : tuple of str
+        What the reader decided that a user may want to know (columns ignored, polygons triangulated,
+        ...), as sentences.
     """
 
     points: np.ndarray

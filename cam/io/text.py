@@ -60,19 +60,24 @@ _ALIASES = {
 def read_xyz(path: str | os.PathLike[str]) -> InputData:
     """Read a point cloud stored as numeric text columns (see the module docstring for the column rule).
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The text file (XYZ, PTS, TXT, CSV).
+
     Returns
     -------
-    :class:`~cam.io.records.InputData` with ``points`` float64 (n, 3),
-    ``normals`` float64 (n, 3) or None, ``colors`` uint8 (n, 3) or None,
-    ``faces`` None, ``format`` ``"xyz"``, the header lines as ``comments``.
+    data : InputData
+        ``points`` (n, 3) float64, ``normals`` (n, 3) float64 or None, ``colors`` (n, 3) uint8 or None,
+        ``faces`` None, ``format`` ``"xyz"``, the header lines as ``comments``, and ``notes`` on which
+        columns were read as what and which were ignored.
 
     Raises
     ------
     ReadError
-        When no numeric row exists, rows have fewer than 3 columns, a row's
-        column count differs from the first row's, a token is not a number
-        (the message names the line), or a ``.pts`` count exceeds the rows
-        that follow.
+        For a missing file, when no numeric row exists, rows have fewer than 3 columns, a row's column
+        count differs from the first row's, a token is not a number (the message names the line), or a
+        ``.pts`` count exceeds the rows that follow.
     """
     raw = read_bytes(path)
     if raw.startswith(b"\xef\xbb\xbf"):

@@ -20,7 +20,23 @@ __all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles", 
 
 @dataclass(frozen=True, eq=False)
 class MeshIndex:
-    """A triangle mesh prepared for closest-point queries (build once, query often)."""
+    """A triangle mesh prepared for closest-point queries (build once with `mesh_index`, query often).
+
+    Attributes
+    ----------
+    vertices : (n, 3) float64
+        Vertex coordinates in mm.
+    faces : (m, 3) int64
+        Triangles as vertex indices.
+    vertex_tree : scipy.spatial.cKDTree
+        The vertices that some triangle uses.
+    centroid_tree : scipy.spatial.cKDTree
+        The triangles' centroids, indexed like `faces`.
+    radius : float
+        Largest centroid-to-corner distance, mm.
+    radii : (m,) float64
+        Each triangle's centroid-to-corner distance, mm.
+    """
 
     vertices: np.ndarray  # float64 (n, 3), mm
     faces: np.ndarray  # int64 (m, 3)
@@ -31,7 +47,25 @@ class MeshIndex:
 
 
 def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
-    """Build the query structure; vertices float64 (n, 3) mm, faces int (m, 3)."""
+    """Build the query structure of a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Vertex coordinates in mm.
+    faces : (m, 3) array_like of int
+        Triangles as vertex indices in [0, n).
+
+    Returns
+    -------
+    index : MeshIndex
+        The mesh with its k-d trees and centroid radii.
+
+    Raises
+    ------
+    ValueError
+        For arrays of the wrong shape, a mesh without triangles, or an index outside the vertices.
+    """
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
@@ -48,7 +82,21 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
 
 
 def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
-    """Unit normals float64 (k, 3) of the mesh's triangles int (k,) (as `closest_points` returns them)."""
+    """Unit normals of the mesh's triangles (as `closest_points` returns them).
+
+    Parameters
+    ----------
+    index : MeshIndex
+        The mesh.
+    triangles : (k,) array_like of int
+        Triangle indices into ``index.faces``.
+
+    Returns
+    -------
+    normals : (k, 3) float64
+        Unit normals by the right-hand rule over each triangle's corner order; zero for a degenerate
+        triangle.
+    """
     corners = index.vertices[index.faces[np.asarray(triangles, dtype=np.int64)]]
     n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
@@ -56,11 +104,24 @@ def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
 
 def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Closest point on triangle (a, b, c) to p, row by row: points (n, 3) and barycentrics (n, 3).
+    """Closest point on triangle (a, b, c) to p, row by row.
 
-    All inputs float64 (n, 3). Voronoi-region classification of p against the
-    triangle's corners and edges; a degenerate (zero-area) triangle gives the
-    closest point of its three edges.
+    Voronoi-region classification of p against the triangle's corners and edges; a degenerate
+    (zero-area) triangle gives the closest point of its three edges.
+
+    Parameters
+    ----------
+    p : (n, 3) float64
+        Query points in mm.
+    a, b, c : (n, 3) float64
+        The corners of each row's triangle in mm.
+
+    Returns
+    -------
+    points : (n, 3) float64
+        Closest points in mm.
+    barycentric : (n, 3) float64
+        Their weights of a, b and c, summing to 1.
     """
     ab, ac, ap = b - a, c - a, p - a
     d1 = np.einsum("ij,ij->i", ab, ap)
@@ -123,9 +184,27 @@ def _closest_on_edges(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
 
 def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Closest mesh points to `points` float64 (n, 3) mm.
+    """Closest mesh points to `points`, exact (see the module docstring).
 
-    Returns closest float64 (n, 3), distance float64 (n,), triangle int64 (n,), barycentric float64 (n, 3).
+    Parameters
+    ----------
+    index : MeshIndex
+        The mesh.
+    points : (n, 3) array_like of float
+        Query points in mm, the mesh's frame.
+    chunk : int, optional
+        Points queried at once, to bound memory (default 20000).
+
+    Returns
+    -------
+    closest : (n, 3) float64
+        Closest points on the mesh in mm.
+    distance : (n,) float64
+        Distances to them in mm.
+    triangle : (n,) int64
+        The triangle each lies on.
+    barycentric : (n, 3) float64
+        Its barycentric coordinates in that triangle.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(P)

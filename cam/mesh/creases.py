@@ -14,9 +14,23 @@ __all__ = ["Creases", "closest_on_creases", "mesh_creases"]
 
 @dataclass(frozen=True, eq=False)
 class Creases:
-    """Crease segments of a mesh: endpoints a, b float64 (k, 3) mm; corners float64 (c, 3): crease-graph
-    vertices where three or more creases meet or a crease ends, with their number of creases
-    corner_degree int (c,)."""
+    """Crease segments of a mesh and the corners of the crease graph (see `mesh_creases`).
+
+    Attributes
+    ----------
+    a, b : (k, 3) float64
+        Endpoints of the crease segments, mm.
+    corners : (c, 3) float64
+        Crease-graph vertices where three or more creases meet or a crease ends, mm.
+    tree : scipy.spatial.cKDTree or None
+        The segments' midpoints; None when there are no creases.
+    corner_tree : scipy.spatial.cKDTree or None
+        The corners; None when there are none.
+    reach : float
+        Half the longest segment, mm: a segment's points lie within it of its midpoint.
+    corner_degree : (c,) int64
+        The number of creases at each corner.
+    """
 
     a: np.ndarray
     b: np.ndarray
@@ -28,8 +42,27 @@ class Creases:
 
 
 def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 40.0) -> Creases:
-    """Edges of the triangle mesh (float64 (n, 3) mm, int (m, 3)) whose two faces' normals differ by more
-    than `angle_deg`."""
+    """Edges of a triangle mesh whose two faces' normals differ by more than `angle_deg`.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Vertex coordinates in mm.
+    faces : (m, 3) array_like of int
+        Triangles as vertex indices.
+    angle_deg : float, optional
+        Threshold on the angle between the normals in degrees, in (0, 180) (default 40).
+
+    Returns
+    -------
+    creases : Creases
+        The crease segments; empty (no trees, reach 0) when there are none.
+
+    Raises
+    ------
+    ValueError
+        When `angle_deg` is not in (0, 180).
+    """
     import trimesh
 
     if not 0 < angle_deg < 180:
@@ -52,12 +85,30 @@ def mesh_creases(vertices: np.ndarray, faces: np.ndarray, *, angle_deg: float = 
 
 def closest_on_creases(creases: Creases, points: np.ndarray, *, directions: np.ndarray | None = None,
                        max_angle_deg: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
-    """Closest crease points to `points` (n, 3): points float64 (n, 3), distances float64 (n,) (inf: none found).
+    """Closest crease points to `points`.
 
-    directions float64 (n, 3): where given (non-zero rows), only crease segments within
-    `max_angle_deg` of that direction (either sense) count, so a point on an edge that runs
-    across a crease is not pulled onto it; nor does a point move more along the direction
-    than across it (an edge that runs on past where a crease ends stays off the crease's end).
+    Candidates are the 16 segments with the nearest midpoints. Where a direction is given (a non-zero
+    row), only crease segments within `max_angle_deg` of that direction (either sense) count, so a point
+    on an edge that runs across a crease is not pulled onto it; nor does a point move more along the
+    direction than across it (an edge that runs on past where a crease ends stays off the crease's end).
+
+    Parameters
+    ----------
+    creases : Creases
+        From `mesh_creases`.
+    points : (n, 3) array_like of float
+        Query points in mm.
+    directions : (n, 3) array_like of float or None, optional
+        Direction per point (any length; a zero row means none); None (default) for no direction test.
+    max_angle_deg : float, optional
+        Largest angle between a direction and a segment, degrees (default 30).
+
+    Returns
+    -------
+    closest : (n, 3) float64
+        Closest crease points in mm; not usable where the distance is inf.
+    distance : (n,) float64
+        Distances in mm; inf where no crease counts.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if creases.tree is None or not len(P):

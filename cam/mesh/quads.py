@@ -19,32 +19,35 @@ __all__ = ["QuadTopology", "face_areas", "face_normals", "quad_topology", "verte
 
 @dataclass(frozen=True, eq=False)
 class QuadTopology:
-    """Connectivity of a consistently oriented, edge-manifold quad mesh.
+    """Connectivity of a consistently oriented, edge-manifold quad mesh (see the module docstring for the
+    half-edge numbering); build it with `quad_topology`.
 
     Attributes
     ----------
-    faces
-        int64 (m, 4), as given.
-    n_vertices
+    faces : (m, 4) int64
+        Vertex indices of each quad, as given.
+    n_vertices : int
         Number of vertices (unused ones included; they have no half-edges).
-    twin
-        int64 (4m,): the opposite half-edge, -1 on a boundary.
-    edge_of
-        int64 (4m,): undirected edge id of each half-edge.
-    edges
-        int64 (ne, 2): the two vertices of each edge, smaller index first.
-    edge_faces
-        int64 (ne, 2): the face(s) of each edge, -1 where there is none.
-    boundary_edge
-        bool (ne,): the edge has one face.
-    valence
-        int64 (n,): edges per vertex.
-    face_count
-        int64 (n,): faces per vertex.
-    boundary_vertex
-        bool (n,): the vertex has a boundary edge.
-    out_ptr, out_he
-        CSR of outgoing half-edges per vertex: ``out_he[out_ptr[v]:out_ptr[v+1]]``.
+    twin : (4m,) int64
+        The opposite half-edge, -1 on a boundary.
+    edge_of : (4m,) int64
+        Undirected edge id of each half-edge.
+    edges : (ne, 2) int64
+        The two vertices of each edge, smaller index first.
+    edge_faces : (ne, 2) int64
+        The face(s) of each edge, -1 where there is none.
+    boundary_edge : (ne,) bool
+        The edge has one face.
+    valence : (n,) int64
+        Edges per vertex.
+    face_count : (n,) int64
+        Faces per vertex.
+    boundary_vertex : (n,) bool
+        The vertex has a boundary edge.
+    out_ptr : (n + 1,) int64
+        CSR row pointers of the outgoing half-edges per vertex: ``out_he[out_ptr[v]:out_ptr[v+1]]``.
+    out_he : (4m,) int64
+        The outgoing half-edges, grouped by vertex.
     """
 
     faces: np.ndarray
@@ -62,28 +65,69 @@ class QuadTopology:
 
     @property
     def origin(self) -> np.ndarray:
-        """int64 (4m,): start vertex of each half-edge."""
+        """Start vertex of each half-edge: (4m,) int64."""
         return self.faces.reshape(-1)
 
     @property
     def dest(self) -> np.ndarray:
-        """int64 (4m,): end vertex of each half-edge."""
+        """End vertex of each half-edge: (4m,) int64."""
         return np.roll(self.faces, -1, axis=1).reshape(-1)
 
     def outgoing(self, v: int) -> np.ndarray:
-        """Outgoing half-edges of vertex ``v`` (unordered)."""
+        """Outgoing half-edges of vertex ``v`` (unordered).
+
+        Parameters
+        ----------
+        v : int
+            Vertex index.
+
+        Returns
+        -------
+        half_edges : (k,) int64
+            A view into `out_he`.
+        """
         return self.out_he[self.out_ptr[v]:self.out_ptr[v + 1]]
 
     def regular_interior(self) -> np.ndarray:
-        """bool (n,): interior vertices with 4 edges and 4 faces (one closed fan)."""
+        """Interior vertices with 4 edges and 4 faces (one closed fan).
+
+        Returns
+        -------
+        mask : (n,) bool
+            True at the regular interior vertices.
+        """
         return (~self.boundary_vertex) & (self.valence == 4) & (self.face_count == 4)
 
 
 def next_he(h: int) -> int:
+    """The next half-edge in the same face (counter-clockwise).
+
+    Parameters
+    ----------
+    h : int
+        Half-edge index.
+
+    Returns
+    -------
+    int
+        The half-edge that starts where ``h`` ends.
+    """
     return h - h % 4 + (h + 1) % 4
 
 
 def prev_he(h: int) -> int:
+    """The previous half-edge in the same face.
+
+    Parameters
+    ----------
+    h : int
+        Half-edge index.
+
+    Returns
+    -------
+    int
+        The half-edge that ends where ``h`` starts.
+    """
     return h - h % 4 + (h + 3) % 4
 
 
@@ -92,17 +136,22 @@ def quad_topology(faces: np.ndarray, n_vertices: int) -> QuadTopology:
 
     Parameters
     ----------
-    faces
-        int (m, 4) vertex indices in ``[0, n_vertices)``.
-    n_vertices
+    faces : (m, 4) array_like of int
+        Vertex indices in ``[0, n_vertices)``, counter-clockwise seen from outside.
+    n_vertices : int
         Number of vertices.
+
+    Returns
+    -------
+    topology : QuadTopology
+        The connectivity; ``faces`` converted to int64.
 
     Raises
     ------
     ValueError
-        For faces of the wrong shape or range, a degenerate quad (a repeated
-        vertex), an edge shared by more than two faces, or two faces that run
-        through a shared edge in the same direction (inconsistent orientation).
+        For faces of the wrong shape or range, a degenerate quad (a repeated vertex), an edge shared by
+        more than two faces, or two faces that run through a shared edge in the same direction
+        (inconsistent orientation).
     """
     quads = np.asarray(faces)
     if quads.ndim != 2 or quads.shape[1] != 4 or (quads.size and quads.dtype.kind not in "iu"):
@@ -171,11 +220,22 @@ def quad_topology(faces: np.ndarray, n_vertices: int) -> QuadTopology:
 def vertex_fans(topo: QuadTopology, v: int) -> list[tuple[list[int], bool]]:
     """The fans of faces around vertex ``v``, each as outgoing half-edges in counter-clockwise order.
 
-    Returns a list of ``(half_edges, closed)``. Face ``h // 4`` of each listed
-    half-edge ``h`` lies between edge ``h`` and the next listed one. An open
-    fan (on a boundary) starts at the outgoing boundary half-edge and its last
-    edge is ``prev(half_edges[-1])`` (an incoming boundary half-edge). A
-    manifold vertex has exactly one fan; a pinch has several.
+    Face ``h // 4`` of each listed half-edge ``h`` lies between edge ``h`` and the next listed one. An
+    open fan (on a boundary) starts at the outgoing boundary half-edge and its last edge is
+    ``prev(half_edges[-1])`` (an incoming boundary half-edge). A manifold vertex has exactly one fan; a
+    pinch has several.
+
+    Parameters
+    ----------
+    topo : QuadTopology
+        The mesh connectivity.
+    v : int
+        Vertex index.
+
+    Returns
+    -------
+    fans : list of (list of int, bool)
+        ``(half_edges, closed)`` per fan; empty for a vertex without faces.
     """
     outgoing = [int(h) for h in topo.outgoing(v)]
     remaining = set(outgoing)
@@ -206,7 +266,20 @@ def vertex_fans(topo: QuadTopology, v: int) -> list[tuple[list[int], bool]]:
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """float64 (m, 3): unit normals of quads from the cross product of their diagonals (robust for warped quads)."""
+    """Unit normals of quads from the cross product of their diagonals (robust for warped quads).
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Vertex coordinates in mm.
+    faces : (m, 4) int
+        Vertex indices of each quad, counter-clockwise seen from outside.
+
+    Returns
+    -------
+    normals : (m, 3) float64
+        Unit normals; zero for a quad whose diagonals are parallel.
+    """
     p = np.asarray(vertices, dtype=np.float64)[faces]
     n = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
     length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -214,6 +287,19 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """float64 (m,): area of each quad (half the norm of the diagonal cross product), mm²."""
+    """Area of each quad: half the norm of the diagonal cross product.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Vertex coordinates in mm.
+    faces : (m, 4) int
+        Vertex indices of each quad.
+
+    Returns
+    -------
+    areas : (m,) float64
+        In mm².
+    """
     p = np.asarray(vertices, dtype=np.float64)[faces]
     return 0.5 * np.linalg.norm(np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1]), axis=1)

@@ -10,9 +10,21 @@ __all__ = ["first_occurrences"]
 def first_occurrences(rows: np.ndarray, *, inverse: bool = False):
     """Indices of the first occurrence of each distinct row, in input order.
 
-    With ``inverse``, also int64 (n,) giving for every row the position (in the
-    returned index array) of its first occurrence. Rows are compared bit for
-    bit, except that -0.0 equals 0.0.
+    Rows are compared bit for bit, except that -0.0 equals 0.0.
+
+    Parameters
+    ----------
+    rows : (n, k) ndarray
+        Rows of float64, or of integers (compared as int64).
+    inverse : bool, optional
+        Also return each row's group (default False).
+
+    Returns
+    -------
+    first : (u,) int64
+        Index of the first occurrence of each distinct row, increasing.
+    inverse : (n,) int64
+        Only with ``inverse``: for every row, the position in `first` of its first occurrence.
     """
     if len(rows) == 0:
         empty = np.empty(0, dtype=np.int64)

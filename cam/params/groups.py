@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 __all__ = ["DenoiseParams", "FitParams", "IngestParams", "ReconstructParams", "RemeshParams", "SegmentParams",
            "ToolParams", "ToolpathParams"]
@@ -48,6 +48,13 @@ class ReconstructParams(_Group):
         True, description="Restore the sharp edges marching cubes bevels: bevel vertices move onto the two face "
         "planes around them and the edges between are split at the crease. False: plain marching cubes.")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the sampling and initialisation.")
+
+    @model_validator(mode="after")
+    def _network_size_needs_a_network(self) -> ReconstructParams:
+        if self.preset == "fast" and (self.width is not None or self.depth is not None):
+            raise ValueError("width and depth size the network of the mlp and paper presets; the fast preset "
+                             "has none (set reconstruct.preset to mlp or paper, or leave them unset)")
+        return self
 
 
 class DenoiseParams(_Group):

@@ -23,8 +23,19 @@ __all__ = ["Assignment", "assign_setups", "opposite_setup", "reach"]
 
 @dataclass
 class Assignment:
-    """setups: the setups in use (given ones first); patches[setup id] = patch ids it machines;
-    unmachined: [{"patch", "reason"}]; reach[patch id] = reachable fraction in its setup."""
+    """Which setup machines which patch, and the patches no setup reaches.
+
+    Attributes
+    ----------
+    setups : list of Setup
+        The setups in use, the given ones first (the opposite setup after them, when a patch went to it).
+    patches : dict of int to list of int
+        ``patches[setup id]``: the ids of the patches that setup machines.
+    unmachined : list of dict
+        ``{"patch": id, "reason": str}`` for every patch no setup reaches.
+    reach : dict of int to float
+        ``reach[patch id]``: the fraction (0..1] of the patch its setup reaches.
+    """
 
     setups: list[Setup]
     patches: dict[int, list[int]] = field(default_factory=dict)
@@ -33,7 +44,24 @@ class Assignment:
 
 
 def opposite_setup(setup: Setup, surfaces: list[BSplineSurface], *, new_id: int) -> Setup:
-    """The part turned over about machine X, placed so its lowest point and xy centre stay where they were."""
+    """The part turned over about machine X, placed so its lowest point and xy centre stay where they were.
+
+    Parameters
+    ----------
+    setup : Setup
+        The setup to turn over.
+    surfaces : list of BSplineSurface
+        The part's surfaces, part frame, mm; their control points give the lowest point (smallest
+        machine z) and the xy centre (mean machine x, y) that are kept.
+    new_id : int
+        Id of the new setup.
+
+    Returns
+    -------
+    Setup
+        Rotation diag(1, −1, −1) · ``setup.rotation`` (the opposite tool axis), translation (mm) such
+        that the control points' lowest z and mean x, y are those in `setup`.
+    """
     flip = np.diag([1.0, -1.0, -1.0])
     rot = flip @ setup.rotation
     pts = np.concatenate([s.control_points.reshape(-1, 3) for s in surfaces])
@@ -44,7 +72,30 @@ def opposite_setup(setup: Setup, surfaces: list[BSplineSurface], *, new_id: int)
 
 
 def reach(index: SurfaceIndex, patch: Patch, r: float, *, samples: int = 10) -> tuple[float, str]:
-    """Fraction of a samples × samples grid of the patch the ball reaches, and the main reason for the rest."""
+    """Fraction of a samples × samples grid of the patch the ball reaches, and the main reason for the rest.
+
+    A sample is reached when its outward normal has a positive z part (faces the tool), the tangent ball
+    there clears every patch of `index` (to 1e-4 mm) and its shank meets none (`shank_clear`).
+
+    Parameters
+    ----------
+    index : SurfaceIndex
+        The whole part, machine frame (`build_index`).
+    patch : Patch
+        The patch, in the same machine frame, sign outward.
+    r : float
+        Ball radius, mm.
+    samples : int
+        Grid size per parameter direction; the grid spans 2 % to 98 % of the domain.
+
+    Returns
+    -------
+    fraction : float
+        Share of the samples reached, in [0, 1].
+    reason : str
+        The most frequent of "the surface faces away from the tool", "the ball would cut a neighbouring
+        surface" and "the tool shank would hit the part" among the rest; "" when every sample is reached.
+    """
     (u0, u1), (v0, v1) = patch.domain
     g = np.linspace(0.02, 0.98, samples)
     uu, vv = np.meshgrid(u0 + g * (u1 - u0), v0 + g * (v1 - v0), indexing="ij")
@@ -68,7 +119,41 @@ def assign_setups(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndar
     """Give every patch the setup that reaches most of it; add the opposite setup when that helps.
 
     Patches in `skip` (already reported by the caller) still count as part of the part but get no setup.
-    obstacles: the whole surfaces the tool must not cut, when `surfaces` are only the parts to finish.
+    When some patch's best fraction is below `min_reach`, the setup opposite to ``setups[0]``
+    (`opposite_setup`) is tried for those patches; it is kept only when a patch goes to it. A patch
+    that no setup reaches at all is listed under ``unmachined`` with the reason of the first setup.
+
+    Parameters
+    ----------
+    ids : list of int
+        Patch ids, one per surface.
+    surfaces : list of BSplineSurface
+        The surfaces to finish, part frame, mm.
+    signs : (len(surfaces),) float64
+        +1/−1 per surface making S_u × S_v outward.
+    setups : list of Setup
+        The given setups; at least one.
+    r : float
+        Ball radius, mm.
+    min_reach : float
+        Reachable fraction (0..1) below which the opposite setup is tried.
+    spacing_mm : float or None
+        Sample spacing of the part's `SurfaceIndex`, mm; default max(r / 4, 0.25).
+    skip : set of int
+        Patch ids the caller has already reported: no setup for them.
+    obstacles : list of BSplineSurface or None
+        The whole surfaces the tool must not cut, when `surfaces` are only the parts to finish (one per id,
+        part frame, mm); default `surfaces`.
+
+    Returns
+    -------
+    Assignment
+        The setups in use, the patches of each, the unmachined patches and each patch's reach.
+
+    Raises
+    ------
+    ValueError
+        When `setups` is empty.
     """
     if not setups:
         raise ValueError("at least one setup is needed")

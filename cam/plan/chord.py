@@ -36,10 +36,22 @@ __all__ = ["PassPoints", "discretize", "lattices"]
 class PassPoints:
     """Cutter positions of one parameter path.
 
-    uv: float64 (n, 2); cc: contact points and normal: outward unit normals, float64 (n, 3);
-    centre: ball centres after chord lifts, float64 (n, 3) mm; lift: float64 (n,) mm along the normal;
-    kind: int8 (n − 1,) per move (0 side, 1 link, 2 excursion); chord_error: float64 (n − 1,) the extra
-    material each move may leave (mm).
+    Attributes
+    ----------
+    uv : (n, 2) float64
+        Contact parameters (u, v) of each position.
+    cc : (n, 3) float64
+        Contact points, mm, in the patch's frame.
+    normal : (n, 3) float64
+        Outward unit normals at the contact points.
+    centre : (n, 3) float64
+        Ball centres after chord lifts, mm: contact + (r + lift)·normal.
+    lift : (n,) float64
+        Chord lift of each position, mm along the normal.
+    kind : (n − 1,) int8
+        Per move: 0 side, 1 link, 2 excursion.
+    chord_error : (n − 1,) float64
+        The extra material each move may leave, mm.
     """
 
     uv: np.ndarray
@@ -56,6 +68,24 @@ def lattices(patch: Patch, *, r: float, tol: float, samples: int = 25) -> tuple[
 
     The sag of a step Δ along u is Δ²·|S_u|²·|κ_u|·(1 + rκ_u)/8 (the centre curve is the contact curve
     scaled by 1 + rκ, with curvature κ/(1 + rκ)); the lattice takes the worst point of a grid.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    r : float
+        Ball radius, mm.
+    tol : float
+        Largest chord sag of the ball-centre curve, mm.
+    samples : int
+        Grid of samples × samples points over the domain on which the worst bending is taken.
+
+    Returns
+    -------
+    lat_u : (k_u + 1,) float64
+        Evenly spaced u values from u0 to u1 (just the two ends where the u lines do not bend).
+    lat_v : (k_v + 1,) float64
+        The same for v.
     """
     (u0, u1), (v0, v1) = patch.domain
     uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
@@ -110,7 +140,43 @@ def discretize(patch: Patch, uv: np.ndarray, kind: np.ndarray, *, r: float, tol:
     """Cutter positions along a parameter path (uv float (m, 2), kind int (m − 1,)) with chord error ≤ tol.
 
     Each move is probed at `probes` interior points; moves whose error would exceed tol are split.
-    lateral_weight: mm of material per mm of sideways chord deviation (tan φ, see the module docstring).
+    Segments along u (v constant) get a vertex at every lattice u between their ends, segments along v
+    likewise; other segments are split evenly at the finest lattice step. Where a move's chord passes
+    below its probes (towards the part) both its ends are lifted along the normal by the dip. A move's
+    error is the largest of its ends' lifts and its probes' distances below or above the chord, plus
+    `lateral_weight` times its largest sideways deviation; moves over `tol` are halved, up to 8 rounds.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch the path runs on.
+    uv : (m, 2) float
+        Corner points of the parameter path (straight parameter segments between them).
+    kind : (m − 1,) int
+        Per segment: 0 side, 1 link, 2 excursion; every move cut from a segment keeps its kind.
+    r : float
+        Ball radius, mm.
+    tol : float
+        Chord error allowed per move, mm (> 0).
+    lat_u, lat_v : (k,) float64
+        Vertex lattices in u and v (`lattices`).
+    probes : int
+        Interior points probed per move.
+    lateral_weight : float
+        mm of material per mm of sideways chord deviation (tan φ, see the module docstring); ≥ 0.
+
+    Returns
+    -------
+    PassPoints
+        The positions along the path, every move's ``chord_error`` ≤ tol. A path of one point gives one
+        position and no moves.
+
+    Raises
+    ------
+    ValueError
+        When `tol` is not positive or `lateral_weight` is negative or NaN.
+    NotPlannable
+        When after 8 rounds of splitting some move still exceeds `tol` (a degenerate fitted surface).
     """
     if tol <= 0:
         raise ValueError(f"chord tolerance must be positive, got {tol} mm")

@@ -30,9 +30,25 @@ def ray_capsule_entry(origin: np.ndarray, direction: np.ndarray, seg_a: np.ndarr
                       r: float) -> np.ndarray:
     """First entry t ≥ 0 (mm) of each ray origin + t·direction into the union of the capsules.
 
-    origin, direction: float (n, 3), direction of unit length; seg_a, seg_b: float (m, 3) segment ends
-    (the axis of each capsule), r: capsule radius mm. Returns float64 (n,): 0 where the origin lies
-    inside a capsule, +inf where the ray misses them all.
+    Each capsule is the cylinder of radius r around a segment and the two balls at its ends; the
+    entry is solved in closed form for every ray and capsule (O(n·m) memory).
+
+    Parameters
+    ----------
+    origin : (n, 3) float
+        Ray origins, mm.
+    direction : (n, 3) float
+        Ray directions, of unit length.
+    seg_a, seg_b : (m, 3) float
+        Segment ends (the axis of each capsule), mm.
+    r : float
+        Capsule radius, mm.
+
+    Returns
+    -------
+    t : (n,) float64
+        First entry along each ray, mm: 0 where the origin lies inside a capsule, +inf where the ray
+        misses them all.
     """
     o, n = np.asarray(origin, dtype=np.float64), np.asarray(direction, dtype=np.float64)
     a, b = np.asarray(seg_a, dtype=np.float64), np.asarray(seg_b, dtype=np.float64)
@@ -70,6 +86,31 @@ def edge_scallop(patch: Patch, *, along: str, edge: float, line: float, lo: floa
     `samples` even parameters and at the surface's knots between them.
 
     along 'u': both are lines v = const over u in [lo, hi]; along 'v': lines u = const over v.
+    The ball centres of the ring line, sampled `CENTRES_PER_SAMPLE` times as densely (and at the knots),
+    form the capsules the normal ray of each edge point enters (`ray_capsule_entry`).
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    along : {'u', 'v'}
+        The parameter that runs along both lines.
+    edge : float
+        Fixed parameter of the edge iso-line.
+    line : float
+        Fixed parameter of the ring line.
+    lo, hi : float
+        Range of the running parameter.
+    r : float
+        Ball radius, mm.
+    samples : int
+        Even samples on the edge line.
+
+    Returns
+    -------
+    material : (k,) float64
+        Material left at each edge sample, mm, in parameter order; k ≥ samples (the knots strictly
+        between lo and hi are added); +inf where the normal ray misses the swept balls.
     """
     # A C0 knot line (a border that turns a corner) puts a corner in both lines and a sharp peak of the
     # material on the edge: its knots are sampled on both, wherever the uniform samples fall.
@@ -84,8 +125,48 @@ def edge_scallop(patch: Patch, *, along: str, edge: float, line: float, lo: floa
 def edge_step(patch: Patch, *, along: str, edge: float, direction: float, limit: float, lo: float, hi: float,
               r: float, h: float, samples: int) -> tuple[float, float]:
     """Largest checked inset (parameter units, ≥ 0) of a ring line from `edge` towards `limit`, and the
-    material it leaves on the edge (mm). Starts from half the admissible interval at the edge's smallest
-    normal curvature across it and shrinks until the exact material holds h at every sample."""
+    material it leaves on the edge (mm).
+
+    Starts from half the admissible interval at the edge's smallest normal curvature across it and
+    shrinks until the exact material holds h at every sample. The start is the smallest over `samples`
+    points of the edge of half the admissible arc gap (`arc_gap`) turned into parameter units, capped
+    at the room to `limit`; each shrink multiplies it by 0.995·√(h / material) (by 0.5 where the
+    material is not finite), at most 30 times.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    along : {'u', 'v'}
+        The parameter that runs along the edge (along 'u': the edge is a line v = const).
+    edge : float
+        Fixed parameter of the edge line.
+    direction : float
+        +1 or −1: the sign of the inset, towards `limit`.
+    limit : float
+        The opposite edge's parameter: the inset never passes it.
+    lo, hi : float
+        Range of the running parameter.
+    r : float
+        Ball radius, mm.
+    h : float
+        Material one pass alone may leave on the edge, mm.
+    samples : int
+        Samples along the edge.
+
+    Returns
+    -------
+    step : float
+        The inset, parameter units, in [0, |limit − edge|].
+    material : float
+        The largest material the ring line at that inset leaves on the edge, mm (≤ h); (0.0, 0.0) when
+        `limit` equals `edge`.
+
+    Raises
+    ------
+    NotPlannable
+        When no inset keeps the material within h (a degenerate fitted surface).
+    """
     room = abs(limit - edge)
     if room <= 0:
         return 0.0, 0.0
@@ -105,8 +186,33 @@ def edge_step(patch: Patch, *, along: str, edge: float, direction: float, limit:
 def inset_rectangle(patch: Patch, *, r: float, h: float, samples: int) -> tuple[tuple[float, float, float, float],
                                                                                  np.ndarray]:
     """The first ring (u0, u1, v0, v1) inside the patch's domain, and the material it leaves on the four
-    edges (mm, float64 (4,), in the grid's side order v0, u1, v1, u0). Where opposite insets would cross,
-    the ring is the one line between them that both edges allow."""
+    edges.
+
+    Where opposite insets would cross, the ring is the one line between them that both edges allow.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    r : float
+        Ball radius, mm.
+    h : float
+        Material the first ring alone may leave on each edge, mm.
+    samples : int
+        Samples per edge (`edge_step`).
+
+    Returns
+    -------
+    ring : tuple of 4 float
+        (u0, u1, v0, v1) of the first ring, parameters.
+    material : (4,) float64
+        The material it leaves on the four edges, mm, in the grid's side order v0, u1, v1, u0.
+
+    Raises
+    ------
+    NotPlannable
+        When no inset of some edge keeps the material within h (`edge_step`).
+    """
     (a, b), (c, d) = patch.domain
     sc, wc = edge_step(patch, along="u", edge=c, direction=1, limit=d, lo=a, hi=b, r=r, h=h, samples=samples)
     sd, wd = edge_step(patch, along="u", edge=d, direction=-1, limit=c, lo=a, hi=b, r=r, h=h, samples=samples)

@@ -17,12 +17,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cam.spline.geometry import Patch
-from cam.spline.surface import (
-    BSplineSurface,
-    c0_pieces,
-    foot_in_pieces,
-    make_piece_boxes,
-)
+from cam.spline.pieces import c0_pieces, foot_in_pieces, make_piece_boxes
+from cam.spline.surface import BSplineSurface
 
 __all__ = [
     "GOUGE_TOL_MM",
@@ -43,8 +39,20 @@ GOUGE_TOL_MM = 1e-5
 class SurfaceIndex:
     """Dense samples of every patch (machine frame) for start points and shank tests.
 
-    trees[i], uv[i]: KD-tree over patch i's samples and their parameters (n_i, 2);
-    points: float64 (N, 3) all samples; tree_xy: KD-tree of their (x, y); spacing: sample spacing, mm.
+    Attributes
+    ----------
+    patches : tuple of Patch
+        The indexed patches, machine frame.
+    trees : tuple of cKDTree
+        ``trees[i]``: KD-tree over patch i's samples, (n_i, 3) points, mm.
+    uv : tuple of (n_i, 2) float64
+        ``uv[i]``: the parameters of patch i's samples.
+    points : (N, 3) float64
+        All samples, mm.
+    tree_xy : cKDTree
+        KD-tree of their (x, y).
+    spacing : float
+        Sample spacing, mm.
     """
 
     patches: tuple[Patch, ...]
@@ -68,7 +76,25 @@ def _grid(patch: Patch, spacing: float, max_side: int = 400) -> np.ndarray:
 
 
 def build_index(patches: list[Patch], *, spacing_mm: float) -> SurfaceIndex:
-    """Sample every patch about `spacing_mm` apart (capped at 400 per side) and index the samples."""
+    """Sample every patch about `spacing_mm` apart (capped at 400 per side) and index the samples.
+
+    Parameters
+    ----------
+    patches : list of Patch
+        The patches, machine frame.
+    spacing_mm : float
+        Sample spacing, mm (> 0); each parameter direction gets at least 2 intervals.
+
+    Returns
+    -------
+    SurfaceIndex
+        The samples and their KD-trees.
+
+    Raises
+    ------
+    ValueError
+        When `spacing_mm` is not positive.
+    """
     if spacing_mm <= 0:
         raise ValueError(f"spacing_mm must be positive, got {spacing_mm}")
     trees, uvs, pts = [], [], []
@@ -155,8 +181,26 @@ def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarra
 def closest_points(index: SurfaceIndex, x: np.ndarray, *, max_distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nearest surface point of every x (float (n, 3) mm) among all patches, within max_distance.
 
-    Returns (distance (n,) mm, inf beyond max_distance; patch index (n,) int, −1 when none;
-    uv (n, 2); foot (n, 3)).
+    Parameters
+    ----------
+    index : SurfaceIndex
+        The patches and their samples.
+    x : (n, 3) float
+        Query points, mm, same frame as `index`.
+    max_distance : float
+        Search radius, mm; patches whose samples lie farther than max_distance + ``index.spacing`` are
+        not projected on.
+
+    Returns
+    -------
+    distance : (n,) float64
+        Distance to the nearest foot point, mm; inf beyond max_distance.
+    patch : (n,) int
+        Index into ``index.patches`` of the nearest patch (not its id), −1 when none was projected on.
+    uv : (n, 2) float64
+        Parameters of the foot point (0 where none).
+    foot : (n, 3) float64
+        The foot point, mm (NaN where none).
     """
     x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
     n = len(x)
@@ -180,7 +224,22 @@ def closest_points(index: SurfaceIndex, x: np.ndarray, *, max_distance: float) -
 
 
 def clearance(index: SurfaceIndex, centres: np.ndarray, r: float) -> np.ndarray:
-    """Distance of each ball centre (float (n, 3)) to the part minus r, mm; negative where it gouges."""
+    """Distance of each ball centre (float (n, 3)) to the part minus r, mm; negative where it gouges.
+
+    Parameters
+    ----------
+    index : SurfaceIndex
+        The whole part.
+    centres : (n, 3) float
+        Ball centres, mm, same frame as `index`.
+    r : float
+        Ball radius, mm.
+
+    Returns
+    -------
+    clearance : (n,) float64
+        Distance to the nearest surface minus r, mm; r where no surface lies within 2r.
+    """
     d, *_ = closest_points(index, centres, max_distance=2 * r)
     return np.where(np.isfinite(d), d - r, r)
 
@@ -191,6 +250,27 @@ def lift_to_clear(index: SurfaceIndex, centres: np.ndarray, r: float, *, tol: fl
 
     Newton on the clearance with d(distance)/dz = the z part of the unit vector from foot to centre.
     Lifts beyond max_lift (default r) are returned as NaN: such a position is left out, not forced.
+    The slope is clamped to [0.2, 1]; at most 40 Newton steps.
+
+    Parameters
+    ----------
+    index : SurfaceIndex
+        The whole part.
+    centres : (n, 3) float
+        Ball centres, mm, same frame as `index`.
+    r : float
+        Ball radius, mm.
+    tol : float
+        A ball counts as clear at distance ≥ r − tol; each step also adds tol to the lift, mm.
+    max_lift : float or None
+        Largest lift allowed, mm; default r.
+
+    Returns
+    -------
+    centres : (n, 3) float64
+        The lifted centres, mm (rows whose lift is NaN hold no usable position).
+    lift : (n,) float64
+        The lift of each, mm along +Z: 0 where the ball already cleared, NaN beyond max_lift.
     """
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3).copy()
     lift = np.zeros(len(c))
@@ -215,7 +295,27 @@ def lift_to_clear(index: SurfaceIndex, centres: np.ndarray, r: float, *, tol: fl
 
 
 def shank_clear(index: SurfaceIndex, centres: np.ndarray, r: float, *, tol: float = 1e-3) -> np.ndarray:
-    """True where no patch sample lies inside the shank (radius r − tol, above centre z + tol). bool (n,)."""
+    """True where no patch sample lies inside the shank (radius r − tol, above centre z + tol). bool (n,).
+
+    The shank is the vertical cylinder above the ball centre; it is tested against the samples of
+    `index` (``index.points``), not the exact surfaces.
+
+    Parameters
+    ----------
+    index : SurfaceIndex
+        The whole part, machine frame (tool axis +Z).
+    centres : (n, 3) float
+        Ball centres, mm.
+    r : float
+        Ball (and shank) radius, mm.
+    tol : float
+        Margin, mm: the cylinder's radius is r − tol and it starts tol above the centre.
+
+    Returns
+    -------
+    clear : (n,) bool
+        True where no sample lies inside the shank.
+    """
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     ok = np.ones(len(c), dtype=bool)
     if not len(index.points):
@@ -234,6 +334,24 @@ def move_clearance(index: SurfaceIndex, a: np.ndarray, b: np.ndarray, r: float, 
     lowest sample: a move over a convex surface dips between samples by about step² / 8ρ, which at
     the usual steps is more than the gouge tolerance. Returns (clearance (m,) mm, the centre where it
     occurs (m, 3)).
+
+    Parameters
+    ----------
+    index : SurfaceIndex
+        The whole part.
+    a, b : (m, 3) float
+        Start and end ball centres of each move, mm, same frame as `index`.
+    r : float
+        Ball radius, mm.
+    step_mm : float
+        Largest sample spacing along a move, mm.
+
+    Returns
+    -------
+    clearance : (m,) float64
+        Smallest clearance along each move (`clearance`), mm; negative where it gouges.
+    at : (m, 3) float64
+        The ball centre where it occurs, mm.
     """
     a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
     b = np.asarray(b, dtype=np.float64).reshape(-1, 3)

@@ -45,11 +45,22 @@ SIDES = ("v0", "u1", "v1", "u0")  # bottom, right, top, left of the parameter sq
 class RingGrid:
     """Rings of one patch, outermost first.
 
-    rects: float64 (K, 4) = (u0, u1, v0, v1) of each ring; a ring with u0 == u1 or v0 == v1 is a line
-    (the innermost). side_scallop: float64 (K − 1, 4) predicted scallop (mm) of the gap between ring k
-    and k + 1 on the sides SIDES; side_steps: float64 (K − 1, 4) the parameter steps taken. claim: the
-    rectangle the rings finish (the patch's domain); edge_scallop: float64 (4,) the material (mm) the
-    first ring leaves on the claim's edges, in SIDES order (zero where the first ring runs on the edge).
+    Attributes
+    ----------
+    rects : (K, 4) float64
+        (u0, u1, v0, v1) of each ring, parameters; a ring with u0 == u1 or v0 == v1 is a line (the
+        innermost).
+    side_scallop : (K − 1, 4) float64
+        Predicted scallop (mm) of the gap between ring k and k + 1 on the sides SIDES.
+    side_steps : (K − 1, 4) float64
+        The parameter steps taken, per side in SIDES order.
+    strategy : str
+        'adaptive' or 'paper' (see the module docstring).
+    claim : tuple of 4 float
+        The rectangle (u0, u1, v0, v1) the rings finish (the patch's domain).
+    edge_scallop : (4,) float64
+        The material (mm) the first ring leaves on the claim's edges, in SIDES order (zero where the
+        first ring runs on the edge).
     """
 
     rects: np.ndarray
@@ -61,7 +72,23 @@ class RingGrid:
 
 
 def check_concavity(patch: Patch, tool_radius_mm: float, *, samples: int = 33) -> None:
-    """Raise `TooConcave` when a concave radius of curvature ≤ r occurs on a samples × samples grid."""
+    """Raise `TooConcave` when a concave radius of curvature ≤ r occurs on a samples × samples grid.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    tool_radius_mm : float
+        Ball radius r, mm.
+    samples : int
+        Grid size per parameter direction, over the whole domain.
+
+    Raises
+    ------
+    TooConcave
+        Naming the tightest sample (radius, point) and listing the parameters of every sample found
+        too concave (smallest principal curvature κ_min ≤ −1/r).
+    """
     (u0, u1), (v0, v1) = patch.domain
     uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
     fr = frame(patch, uu, vv)
@@ -166,7 +193,34 @@ def side_step(patch: Patch, *, along: str, fixed: float, lo: float, hi: float, d
 
 
 def global_steps(patch: Patch, *, r: float, h: float, samples: int) -> tuple[float, float]:
-    """The paper's one global minimum interval per direction: (Δu, Δv) over a samples × samples grid."""
+    """The paper's one global minimum interval per direction: (Δu, Δv) over a samples × samples grid.
+
+    At each sample the admissible arc gap (`arc_gap`, exact relation, normal curvature across the
+    iso-line) is turned into a parameter step with the first fundamental form; the smallest is taken.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    r : float
+        Ball radius, mm.
+    h : float
+        Scallop height, mm, in (0, r).
+    samples : int
+        Grid size per parameter direction.
+
+    Returns
+    -------
+    du : float
+        Step between the lines u = const, u units.
+    dv : float
+        Step between the lines v = const, v units.
+
+    Raises
+    ------
+    ValueError
+        When r or h are out of range (`arc_gap`).
+    """
     (u0, u1), (v0, v1) = patch.domain
     uu, vv = np.meshgrid(np.linspace(u0, u1, samples), np.linspace(v0, v1, samples), indexing="ij")
     fr = frame(patch, uu, vv)
@@ -181,6 +235,42 @@ def ring_grid(patch: Patch, *, tool_radius_mm: float, scallop_mm: float, samples
 
     scallop_mm is the scallop share of the budget (the chord share is taken off by the caller);
     corner_mm (paper strategy) the bound the corner pockets must hold, default scallop_mm.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch, sign outward.
+    tool_radius_mm : float
+        Ball radius, mm.
+    scallop_mm : float
+        The scallop share of the budget, mm: every side gap (and, adaptive, the first ring's edge
+        material) holds it.
+    samples_per_line : int
+        Samples per side of a ring (≥ 4).
+    strategy : {'adaptive', 'paper'}
+        'paper': global start steps (`global_steps`), first ring on the edges, side steps shrunk for
+        the corner pockets (`rings.shrink_for_corners`); 'adaptive': first ring inset
+        (`edge.inset_rectangle`), each side's own step.
+    corner_mm : float or None
+        Paper strategy: the bound the corner pockets must hold, mm; default scallop_mm.
+    max_rings : int
+        Most rings built.
+
+    Returns
+    -------
+    RingGrid
+        The rings, outermost first, with their predicted side scallops and the first ring's edge
+        material.
+
+    Raises
+    ------
+    ValueError
+        When `strategy` or `samples_per_line` is not allowed.
+    TooConcave
+        When the ball does not fit a hollow, on the grid or on a ring's line.
+    NotPlannable
+        When no step or first-ring inset keeps the scallop within scallop_mm (degenerate fitted
+        surface).
     """
     if strategy not in ("adaptive", "paper"):
         raise ValueError(f"strategy must be 'adaptive' or 'paper', got {strategy!r}")

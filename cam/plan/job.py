@@ -33,6 +33,20 @@ BESIDE_SHARE = 0.1  # a strip beside a patch's planned rectangle is planned too 
 
 @dataclass
 class SetupPlan:
+    """The plan of one setup: its patches' passes and the linked move list of its program.
+
+    Attributes
+    ----------
+    setup : Setup
+        The setup (how the part sits on the machine).
+    patches : list of PatchPlan
+        The planned patches (and strips beside them), in cutting order.
+    moves : MoveList
+        The linked moves of the program: tool tips, mm, machine frame.
+    program : str
+        The program's file name (`program_name`).
+    """
+
     setup: Setup
     patches: list[PatchPlan]
     moves: MoveList
@@ -41,6 +55,31 @@ class SetupPlan:
 
 @dataclass
 class Plan:
+    """What `plan_job` returns: the plan of every setup, and what is not finished, with the reason.
+
+    Attributes
+    ----------
+    setups : list of SetupPlan
+        One per setup in use, in program order.
+    unmachined : list of dict
+        ``{"patch": id, "reason": str}`` for every patch not finished at all.
+    tool_radius_mm : float
+        Ball radius, mm.
+    scallop_height_mm : float
+        The target scallop height h, mm.
+    scallop_share_mm : float
+        The share the rings are planned with, (1 − chord_fraction)·h − `ROUNDING_MM`, mm.
+    chord_tolerance_mm : float
+        The share of the straight moves, chord_fraction·h, mm.
+    strategy : str
+        'adaptive' or 'paper'.
+    stats : dict
+        Further numbers; `plan_job` leaves it empty.
+    partial : list of dict
+        ``{"patch": id, "region": [u0, u1, v0, v1], "kept": share of the area, "reason": str}`` for
+        every patch finished on parameter rectangles only (one entry per rectangle).
+    """
+
     setups: list[SetupPlan]
     unmachined: list[dict]
     tool_radius_mm: float
@@ -53,6 +92,7 @@ class Plan:
 
     @property
     def certified_scallop_mm(self) -> float:
+        """The largest certified scallop bound of any planned patch, mm; 0.0 when none is planned."""
         vals = [p.certified_scallop_mm for s in self.setups for p in s.patches]
         return max(vals) if vals else 0.0
 
@@ -104,7 +144,18 @@ def _plan_beside(patch: Patch, region, whole_surface, index: SurfaceIndex, tool:
 
 
 def program_name(position: int) -> str:
-    """`program.nc` for the first setup, `program-setup2.nc`, ... after it (DESIGN)."""
+    """`program.nc` for the first setup, `program-setup2.nc`, ... after it (DESIGN).
+
+    Parameters
+    ----------
+    position : int
+        The setup's place in the plan, 0 for the first.
+
+    Returns
+    -------
+    str
+        The program's file name.
+    """
     return "program.nc" if position == 0 else f"program-setup{position + 1}.nc"
 
 
@@ -191,17 +242,30 @@ def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup]
 
     Parameters
     ----------
-    ids, surfaces
+    ids, surfaces : list of int, list of BSplineSurface
         Patch ids and their B-spline surfaces (part frame, mm), one each.
-    setups
+    setups : list of Setup
         The setups `segment` chose; the planner may add the opposite one.
-    tool, toolpath
+    tool, toolpath : ToolParams, ToolpathParams
         The job's `tool` and `toolpath` parameter groups (ball radius, scallop height, chord share, ...).
-    signs
-        float (len(surfaces),): +1/−1 per surface making S_u × S_v outward
+    signs : (len(surfaces),) float or None
+        +1/−1 per surface making S_u × S_v outward
         (see `cam.spline.geometry.orientation_signs`); default +1.
-    progress, check_cancel
+    progress, check_cancel : callable or None
         cam's callbacks (see `cam`), called between patches.
+
+    Returns
+    -------
+    Plan
+        Per setup the patches' passes (tool tips, mm, machine frame) and the linked move list, the
+        bounds, and the patches left unmachined or finished in part (`Plan.partial`).
+
+    Raises
+    ------
+    GeometryError
+        When the scallop height does not lie in (0, tool radius).
+    ValueError
+        When `ids` and `surfaces` differ in length, or `setups` is empty.
     """
     r, h, chord_fraction = float(tool.radius_mm), float(toolpath.scallop_height_mm), float(toolpath.chord_fraction)
     if not 0 < h < r:

@@ -16,7 +16,24 @@ __all__ = ["link_passes", "order_patches"]
 
 
 def order_patches(entries: np.ndarray, exits: np.ndarray, *, start: np.ndarray | None = None) -> list[int]:
-    """Greedy nearest-neighbour order of k patches: entries, exits float (k, 3) → indices."""
+    """Greedy nearest-neighbour order of k patches: entries, exits float (k, 3) → indices.
+
+    Each next patch is the one whose entry is nearest, in x and y only, to the current exit.
+
+    Parameters
+    ----------
+    entries : (k, 3) float
+        First tool tip of each patch, mm.
+    exits : (k, 3) float
+        Last tool tip of each patch, mm.
+    start : (3,) float or None
+        Where the tool starts, mm; default the first patch's entry (so that patch comes first).
+
+    Returns
+    -------
+    list of int
+        The patch indices (0..k − 1) in cutting order; empty when k = 0.
+    """
     k = len(entries)
     if k == 0:
         return []
@@ -36,6 +53,24 @@ def link_passes(patch_passes: list[tuple[int, list[np.ndarray]]], *, clearance_z
 
     stay_down(a, b) -> bool decides whether the tool may feed straight from tip a to tip b inside a
     patch (the caller checks the move against the part); None always retracts.
+
+    Parameters
+    ----------
+    patch_passes : list of (int, list of (n_i, 3) float)
+        Per patch its id and its passes: tool tips, mm, machine frame, in cutting order; empty passes
+        are skipped.
+    clearance_z : float
+        Height of the rapid moves between passes and patches, mm (machine z).
+    retract_mm : float
+        Height above a pass's first tip where the rapid descent ends and the plunge starts, mm.
+    stay_down : callable or None
+        ``stay_down(a, b) -> bool`` with a, b (3,) tool tips, asked only between passes of one patch.
+
+    Returns
+    -------
+    MoveList
+        The moves (rapid, plunge, feed), ending with a rapid to `clearance_z` above the last tip;
+        feeds carry their patch id. Empty when there is no tip.
     """
     pts: list[np.ndarray] = []
     kinds: list[int] = []

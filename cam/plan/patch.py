@@ -41,12 +41,52 @@ MAX_REPLANS = 6
 
 @dataclass
 class PatchPlan:
-    """One machined patch. passes: tool tips float64 (n_i, 3) per pass in cutting order (machine frame);
-    centres: the matching ball centres; certified_scallop_mm: the bound the planner certifies on `region`;
-    replans: how often the rectangle was shrunk because the ball had to be lifted off the patch or left
-    out (excluded_points such positions in all) or a hollow tighter than the ball turned up (hollows: what
-    was found, as `TooConcave` words it); touched: whether the reach check or lifted and left-out
-    positions took part of the patch; lift_mm: the largest lift kept (its effect is in the bound)."""
+    """One machined patch.
+
+    Attributes
+    ----------
+    patch : int
+        The patch id.
+    region : tuple of 4 float
+        The parameter rectangle (u0, u1, v0, v1) planned.
+    passes : list of (n_i, 3) float64
+        Tool tips per pass in cutting order, mm (machine frame).
+    centres : list of (n_i, 3) float64
+        The matching ball centres, mm (tool tip + r·Z).
+    certified_scallop_mm : float
+        The bound the planner certifies on `region`, mm.
+    side_scallop_mm : float
+        Largest predicted scallop of the side gaps and of the first ring's edge material, mm.
+    corner_scallop_mm : float
+        Largest bound of a corner pocket, mm.
+    chord_error_mm : float
+        Largest chord error of a move, mm.
+    lift_mm : float
+        The largest lift kept, mm (its effect is in the bound).
+    spacing_mm : tuple of 2 float
+        Smallest and largest pass interval, mm, from the side steps at the side midpoints.
+    rings : int
+        Number of rings.
+    excursions : int
+        Number of corner excursions.
+    path_length_mm : float
+        Summed length of the passes, mm (links between them not counted).
+    reach_fraction : float
+        The share of the patch the caller found reachable, as given.
+    replans : int
+        How often the rectangle was shrunk because the ball had to be lifted off the patch or left out
+        or a hollow tighter than the ball turned up.
+    excluded_points : int
+        Such lifted or left-out positions, in all.
+    strategy : str
+        'adaptive' or 'paper'.
+    time_s : float
+        Planning time, s.
+    hollows : tuple of str
+        The hollows found, as `TooConcave` words them.
+    touched : bool
+        Whether the reach check or lifted and left-out positions took part of the patch.
+    """
 
     patch: int
     region: tuple[float, float, float, float]
@@ -145,7 +185,23 @@ def exclude_points(box: tuple[float, float, float, float], uv: np.ndarray, *,
                    margin: float = 1 / 64) -> tuple[float, float, float, float]:
     """The largest of a few boxes inside `box` free of the points (float (k, 2)): every side moved inward
     past the points nearest to it, or one side moved past all of them (for trouble in the middle), each
-    `margin` of the width beyond; may come back empty (u0 >= u1 or v0 >= v1)."""
+    `margin` of the width beyond; may come back empty (u0 >= u1 or v0 >= v1).
+
+    Parameters
+    ----------
+    box : tuple of 4 float
+        The rectangle (u0, u1, v0, v1), parameters.
+    uv : (k, 2) float
+        The points to exclude, parameters; those outside `box` are ignored.
+    margin : float
+        How far beyond a point a side moves, as a fraction of the box's width in that direction.
+
+    Returns
+    -------
+    tuple of 4 float
+        The box (u0, u1, v0, v1) of largest parameter area among the candidates; `box` itself when no
+        point lies in it.
+    """
     u0, u1, v0, v1 = box
     wu, wv = u1 - u0, v1 - v0
     q = uv[(uv[:, 0] >= u0) & (uv[:, 0] <= u1) & (uv[:, 1] >= v0) & (uv[:, 1] <= v1)]
@@ -222,7 +278,20 @@ def _box(patch: Patch) -> tuple[float, float, float, float]:
 
 
 def restrict_patch(patch: Patch, region: tuple[float, float, float, float]) -> Patch:
-    """The same patch on a parameter sub-rectangle (no knot insertion: a reparameterising wrapper)."""
+    """The same patch on a parameter sub-rectangle (no knot insertion: a reparameterising wrapper).
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    region : tuple of 4 float
+        The sub-rectangle (u0, u1, v0, v1), in the patch's parameters.
+
+    Returns
+    -------
+    Patch
+        Same id and sign; its surface a `SubSurface` with the same parameters on `region`.
+    """
     return Patch(patch.id, SubSurface(patch.surface, region), patch.sign)
 
 
@@ -252,6 +321,43 @@ def plan_patch(patch: Patch, index: SurfaceIndex, tool: ToolParams, toolpath: To
     corner pocket leaves more than the target. Raises `TooConcave`, `Unreachable` or `NotPlannable`
     when no rectangle keeps the bound. `to_part` maps machine-frame points (float (3,)) to the part
     frame the user's files are in, for the points the messages name; default: named as they are.
+
+    The rings are planned at the scallop share h_s = (1 − chord_fraction)·h − `ROUNDING_MM` and the
+    moves at the chord tolerance chord_fraction·h; lifts that fit in what the bound leaves of h are
+    kept and added to it (times 1 / cos φ).
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch in its setup's machine frame (tool axis +Z), sign outward.
+    index : SurfaceIndex
+        The whole part in the same frame (`cam.plan.gouge.build_index`).
+    tool : ToolParams
+        The ball (``radius_mm``).
+    toolpath : ToolpathParams
+        ``scallop_height_mm`` (the target h), ``chord_fraction``, ``samples_per_line`` and ``strategy``.
+    reach_fraction : float
+        The share of the patch the caller found reachable; recorded in the plan.
+    check_cancel : callable or None
+        Called between rings and replans; it stops the work by raising.
+    to_part : callable or None
+        Machine-frame point (3,) float mm → part-frame point (3,) float mm.
+
+    Returns
+    -------
+    PatchPlan
+        The passes on the planned rectangle and the bound certified there (≤ h).
+
+    Raises
+    ------
+    TooConcave
+        When a hollow tighter than the ball cannot be cut out of the rectangle.
+    Unreachable
+        When no rectangle can be reached, or after `MAX_REPLANS` smaller rectangles the ball still
+        touches a neighbouring surface or the shank the part.
+    NotPlannable
+        When the corner pockets leave more than h even on tighter rings, or the fitted surface is
+        degenerate.
     """
     t0 = time.perf_counter()
     r, h, chord_fraction = float(tool.radius_mm), float(toolpath.scallop_height_mm), float(toolpath.chord_fraction)

@@ -116,16 +116,22 @@ def reachable_domain(patch: Patch, index: SurfaceIndex, *, tool_radius_mm: float
 
     Parameters
     ----------
-    patch
+    patch : Patch
         The patch in its setup's machine frame (tool axis +Z), sign outward.
-    index
+    index : SurfaceIndex
         The whole part in the same frame (`cam.plan.gouge.build_index`).
-    tool_radius_mm
-        Ball radius.
-    samples
+    tool_radius_mm : float
+        Ball radius, mm.
+    samples : int
         Grid of samples × samples contact points for the first block; also the samples per line checked.
-    steps, rounds
+    steps, rounds : int
         Insets tried per side (up to half way) and sides moved in at most.
+
+    Returns
+    -------
+    tuple of 4 float
+        (u0, u1, v0, v1), parameters; u0 == u1 and v0 == v1 when no grid point is reached or the
+        blocked sides cannot be moved in to reachable lines within `rounds`.
     """
     (u0, u1), (v0, v1) = patch.domain
     reach = _Reach(patch, index, float(tool_radius_mm), samples)

@@ -17,16 +17,25 @@ import numpy as np
 
 from cam.plan.errors import concave_message
 from cam.plan.scallop import fits_concave
+from cam.spline.folds import FOLD_CHECK_SAMPLES, fold_mask
 from cam.spline.geometry import Patch, frame, principal_curvatures
-from cam.spline.surface import FOLD_CHECK_SAMPLES, fold_mask
 
 __all__ = ["Region", "finishable_region", "largest_clear_rectangle"]
 
 
 @dataclass(frozen=True)
 class Region:
-    """box: (u0, u1, v0, v1) kept, or None when nothing is; kept: its share of the patch's area;
-    reason: why samples were left out ("" when the whole patch is kept)."""
+    """The part of a patch the ball can finish.
+
+    Attributes
+    ----------
+    box : tuple of 4 float or None
+        (u0, u1, v0, v1) kept, parameters, or None when nothing is.
+    kept : float
+        Its share of the patch's area (0..1).
+    reason : str
+        Why samples were left out ("" when the whole patch is kept).
+    """
 
     box: tuple[float, float, float, float] | None
     kept: float
@@ -37,7 +46,24 @@ def finishable_region(patch: Patch, tool_radius_mm: float, *, samples: int = FOL
     """The parameter rectangle of `patch` of largest area without folds or hollows of radius ≤ `tool_radius_mm`.
 
     Checked on a samples x samples grid: the rectangle's sides lie on grid lines and no sample on
-    or inside it is bad; of all such rectangles the one of largest surface area is kept.
+    or inside it is bad; of all such rectangles the one of largest surface area is kept. Samples
+    where S_u × S_v vanishes (no normal, no curvature) are left out too.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch (part frame in `plan_job`), sign outward.
+    tool_radius_mm : float
+        Ball radius, mm.
+    samples : int
+        Grid size per parameter direction.
+
+    Returns
+    -------
+    Region
+        The whole domain with kept 1.0 and reason "" when no sample is bad; else the rectangle (at
+        least three by three samples), its share of the area (sums of √(EG − F²) over the grid) and
+        the reason; box None and kept 0.0 when no such rectangle is clear.
     """
     r = float(tool_radius_mm)
     folded, uu, vv = fold_mask(patch.surface, samples=samples)
@@ -71,6 +97,25 @@ def largest_clear_rectangle(bad: np.ndarray, weight: np.ndarray, *, min_span: in
 
     For each top row i0 and bottom row i1 a column is clear when no row between them is bad there;
     with weights >= 0 the best rectangle on those rows is a whole run of clear columns. O(n² m).
+
+    Parameters
+    ----------
+    bad : (n, m) bool
+        Cells no rectangle may hold.
+    weight : (n, m) float
+        Weight of each cell, ≥ 0 (e.g. its area, mm²).
+    min_span : int
+        Least i1 − i0 and j1 − j0.
+
+    Returns
+    -------
+    tuple of 4 int or None
+        (i0, i1, j0, j1), inclusive, or None.
+
+    Raises
+    ------
+    ValueError
+        When `bad` and `weight` are not 2-D arrays of one shape.
     """
     bad = np.asarray(bad, dtype=bool)
     weight = np.asarray(weight, dtype=np.float64)

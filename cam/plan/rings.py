@@ -73,6 +73,34 @@ def corner_scallop(patch: Patch, outer, inner, corner: tuple[int, int], *, r: fl
     outer, inner: (u0, u1, v0, v1) ring rectangles; corner: (0|1, 0|1) = (u side, v side);
     extra: further contact segments [(uv0, uv1), ...] in parameters (the link, an excursion);
     outer_cut=False: `outer` is the claim's edge, which no pass runs along.
+
+    The pocket is the parameter box between the outer corner P and the inner corner Q; the material
+    the swept balls leave there is maximised on a grid × grid grid, then on two finer grids around
+    the highest point.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    outer, inner : tuple of 4 float
+        The ring rectangles (u0, u1, v0, v1), parameters.
+    corner : tuple of 2 int
+        (u side, v side), each 0 (low) or 1 (high).
+    r : float
+        Ball radius, mm.
+    extra : list of ((2,) float, (2,) float)
+        Further contact segments (uv0, uv1) in parameters (the link, an excursion).
+    grid : int
+        Samples per direction of each search grid.
+    outer_cut : bool
+        False when `outer` is the claim's edge, which no pass runs along.
+
+    Returns
+    -------
+    scallop : float
+        The highest material found in the pocket, mm; 0.0 where the pocket has no width in u or v.
+    uv : (2,) float64
+        Where it is, (u, v) parameters (Q where the pocket has no width).
     """
     seg_a, seg_b, P, Q = _paths_near_corner(patch, outer, inner, corner, list(extra), outer_cut, r)
     lo, hi = np.minimum(P, Q), np.maximum(P, Q)
@@ -143,6 +171,25 @@ def shrink_for_corners(patch: Patch, outer, inner, *, r: float, h: float, sample
     """The paper's corner rule: shrink the u steps (Δs) of `inner` until all four corner pockets hold h.
 
     The start corner counts its link. Returns the new (u0, u1) of the inner ring.
+    Each round keeps 95 % of both u steps; after 60 rounds the last one is returned as it is.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    outer, inner : tuple of 4 float
+        Ring k and ring k + 1 as (u0, u1, v0, v1), parameters.
+    r : float
+        Ball radius, mm.
+    h : float
+        Bound each corner pocket must hold, mm.
+    samples : int
+        Not used.
+
+    Returns
+    -------
+    u0, u1 : float
+        The new u range of the inner ring, parameters.
     """
     a, b, c, d = outer
     na, nb, nc, nd = inner
@@ -162,9 +209,16 @@ def shrink_for_corners(patch: Patch, outer, inner, *, r: float, h: float, sample
 class RingPath:
     """One patch's contact path in parameters, in cutting order.
 
-    uv: float64 (n, 2) corner points of straight parameter segments; kind: int8 (n − 1,) per segment
-    (0 ring side, 1 link between rings, 2 corner excursion); corner_scallop: float64 (m,) the bound of
-    every corner pocket; excursions: number added.
+    Attributes
+    ----------
+    uv : (n, 2) float64
+        Corner points of straight parameter segments.
+    kind : (n − 1,) int8
+        Per segment: 0 ring side, 1 link between rings, 2 corner excursion.
+    corner_scallop : (m,) float64
+        The bound of every corner pocket, mm.
+    excursions : int
+        Number of excursions added.
     """
 
     uv: np.ndarray
@@ -217,6 +271,31 @@ def ring_path(patch: Patch, rects: np.ndarray, *, r: float, corner_mm: float, ex
     inside it, the first ring's four corner pockets against the claim's corners are bounded and given
     excursions too, and with spiral=True the first ring starts on its u0 side at the next ring's v0 line,
     so that side is cut whole.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch.
+    rects : (K, 4) float64
+        The rings (u0, u1, v0, v1), outermost first (`RingGrid.rects`).
+    r : float
+        Ball radius, mm.
+    corner_mm : float
+        The bound each corner pocket must hold with its excursion, mm.
+    excursions : bool
+        Add excursions where a pocket exceeds `corner_mm`; False only bounds the pockets.
+    spiral : bool
+        Join the rings into a spiral (see above) instead of concentric rings with diagonal links.
+    claim : tuple of 4 float or None
+        The rectangle the rings finish (see above); None: the first ring's own, no inset pockets.
+    check_cancel : callable or None
+        Called once per ring; it stops the work by raising.
+
+    Returns
+    -------
+    RingPath
+        The parameter path, its segment kinds, the bound of every corner pocket and the number of
+        excursions.
     """
     inset = claim is not None and len(rects) > 0 and tuple(map(float, rects[0])) != tuple(map(float, claim))
     points: list[np.ndarray] = []

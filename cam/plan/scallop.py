@@ -43,12 +43,43 @@ def _check(r: float, h: np.ndarray | None = None) -> None:
 
 
 def fits_concave(kappa: np.ndarray, r: float) -> np.ndarray:
-    """True where a ball of radius r fits the section: κ > −1/r. kappa: float (...) 1/mm → bool (...)."""
+    """True where a ball of radius r fits the section: κ > −1/r. kappa: float (...) 1/mm → bool (...).
+
+    Parameters
+    ----------
+    kappa : (...) float
+        Signed normal curvature, 1/mm (convex > 0).
+    r : float
+        Ball radius, mm.
+
+    Returns
+    -------
+    (...) bool
+        1 + rκ > 0; False where κ is NaN.
+    """
     return 1.0 + r * np.asarray(kappa, dtype=np.float64) > 0
 
 
 def flat_spacing(h: float | np.ndarray, r: float) -> np.ndarray:
-    """Pass interval on a plane for scallop h: l = 2·√(2rh − h²), mm (shape of h)."""
+    """Pass interval on a plane for scallop h: l = 2·√(2rh − h²), mm (shape of h).
+
+    Parameters
+    ----------
+    h : float or (...) float
+        Scallop height, mm, in (0, r).
+    r : float
+        Ball radius, mm (> 0).
+
+    Returns
+    -------
+    (...) float64
+        The pass interval l, mm, shaped like h.
+
+    Raises
+    ------
+    ValueError
+        When r is not a positive number or some h is not in (0, r).
+    """
     h = np.asarray(h, dtype=np.float64)
     _check(r, h)
     return 2.0 * np.sqrt(h * (2.0 * r - h))
@@ -59,6 +90,28 @@ def half_chord(h: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np
 
     h: mm, kappa: signed normal curvature across the passes (1/mm, convex > 0), broadcast
     together; returns float64 mm. NaN where the ball does not fit (κ ≤ −1/r).
+
+    In a hollow the centres lie on a circle of radius R − r: the half chord is at most 1/|κ_c|, and
+    where the hollow leaves less than h at any spacing (no chord leaves exactly h) it is that largest one.
+
+    Parameters
+    ----------
+    h : float or (...) float
+        Scallop height, mm, in (0, r).
+    r : float
+        Ball radius, mm (> 0).
+    kappa : float or (...) float
+        Signed normal curvature across the passes, 1/mm (convex > 0), broadcast with the first argument.
+
+    Returns
+    -------
+    a : (...) float64
+        Half the ball-centre distance, mm; NaN where the ball does not fit.
+
+    Raises
+    ------
+    ValueError
+        When r is not a positive number or some h is not in (0, r).
     """
     h = np.asarray(h, dtype=np.float64)
     k = np.asarray(kappa, dtype=np.float64)
@@ -79,6 +132,26 @@ def scallop_from_half_chord(a: float | np.ndarray, r: float, kappa: float | np.n
     """Scallop height (mm) left by two balls whose centres are 2a apart; inverse of `half_chord`.
 
     NaN where the ball does not fit (κ ≤ −1/r) and +inf where the balls do not meet (a ≥ r).
+
+    Parameters
+    ----------
+    a : float or (...) float
+        Half the distance between the ball centres, mm (its absolute value is used).
+    r : float
+        Ball radius, mm (> 0).
+    kappa : float or (...) float
+        Signed normal curvature across the passes, 1/mm (convex > 0), broadcast with a.
+
+    Returns
+    -------
+    h : (...) float64
+        Scallop height, mm; NaN also where 2a (< 2r) is wider than the diameter of a hollow's centre
+        circle.
+
+    Raises
+    ------
+    ValueError
+        When r is not a positive number.
     """
     a = np.abs(np.asarray(a, dtype=np.float64))
     k = np.asarray(kappa, dtype=np.float64)
@@ -112,6 +185,25 @@ def arc_gap(h: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np.nd
 
     The contact points sit on the surface circle at the same angle as the ball centres on
     theirs, so w = 2·asin(a κ_c)/κ, written through asin(x)/x to stay exact near κ = 0.
+
+    Parameters
+    ----------
+    h : float or (...) float
+        Scallop height, mm, in (0, r).
+    r : float
+        Ball radius, mm (> 0).
+    kappa : float or (...) float
+        Signed normal curvature across the passes, 1/mm (convex > 0), broadcast with the first argument.
+
+    Returns
+    -------
+    w : (...) float64
+        Arc length between the contact points, mm; NaN where the ball does not fit (κ ≤ −1/r).
+
+    Raises
+    ------
+    ValueError
+        When r is not a positive number or some h is not in (0, r).
     """
     k = np.asarray(kappa, dtype=np.float64)
     a = half_chord(h, r, k)
@@ -121,7 +213,28 @@ def arc_gap(h: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np.nd
 
 
 def scallop_from_arc_gap(w: float | np.ndarray, r: float, kappa: float | np.ndarray) -> np.ndarray:
-    """Scallop height (mm) for contact points w apart along the surface; inverse of `arc_gap`."""
+    """Scallop height (mm) for contact points w apart along the surface; inverse of `arc_gap`.
+
+    Parameters
+    ----------
+    w : float or (...) float
+        Arc length between the contact points, mm.
+    r : float
+        Ball radius, mm (> 0).
+    kappa : float or (...) float
+        Signed normal curvature across the passes, 1/mm (convex > 0), broadcast with w.
+
+    Returns
+    -------
+    h : (...) float64
+        Scallop height, mm (`scallop_from_half_chord`): NaN where the ball does not fit, +inf where
+        the balls do not meet.
+
+    Raises
+    ------
+    ValueError
+        When r is not a positive number.
+    """
     w = np.asarray(w, dtype=np.float64)
     k = np.asarray(kappa, dtype=np.float64)
     _check(r)
@@ -131,7 +244,28 @@ def scallop_from_arc_gap(w: float | np.ndarray, r: float, kappa: float | np.ndar
 
 
 def approximate_spacing(h: float | np.ndarray, r: float, kappa: float | np.ndarray = 0.0) -> np.ndarray:
-    """The usual approximation l ≈ √(8rh / (1 + rκ)) (mm): kept to measure how far it overshoots."""
+    """The usual approximation l ≈ √(8rh / (1 + rκ)) (mm): kept to measure how far it overshoots.
+
+    Parameters
+    ----------
+    h : float or (...) float
+        Scallop height, mm, in (0, r).
+    r : float
+        Ball radius, mm (> 0).
+    kappa : float or (...) float
+        Signed normal curvature across the passes, 1/mm (convex > 0), broadcast with the first argument.
+        Default 0 (a plane).
+
+    Returns
+    -------
+    l : (...) float64
+        Approximate pass interval, mm; NaN where the ball does not fit (κ ≤ −1/r).
+
+    Raises
+    ------
+    ValueError
+        When r is not a positive number or some h is not in (0, r).
+    """
     h = np.asarray(h, dtype=np.float64)
     k = np.asarray(kappa, dtype=np.float64)
     _check(r, h)

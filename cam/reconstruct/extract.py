@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -30,28 +30,43 @@ def extract_surface(
 
     Parameters
     ----------
-    evaluate
-        Maps three float64 coordinate vectors (a, b, c) to the signed values
-        (negative inside) on the lattice they span, shape (a, b, c).
-    lo, hi
-        float64 (3,) box to sample; it must contain the surface with a margin.
-    resolution
+    evaluate : callable
+        Maps three float64 coordinate vectors (a,), (b,), (c,) to the signed
+        values (negative inside) on the lattice they span, shape (a, b, c).
+    lo, hi : ndarray, shape (3,), float64
+        Box to sample, in the points' units; it must contain the surface with a margin.
+    resolution : int
         Cells along the longest side; the cell is cubic.
-    points
-        float64 (n, 3) cloud; a component is kept when at least ``min_share`` of
-        the points are nearest to it (the largest one is always kept).
-    check_cancel
+    points : ndarray, shape (n, 3), float64
+        The cloud; a component is kept when at least ``min_share`` of the points
+        are nearest to it (the largest one is always kept).
+    min_share : float
+        Share of the points a component must carry to be kept.
+    chunk : int
+        Lattice values evaluated per call of ``evaluate`` (about).
+    check_cancel : callable, optional
         Called before each slab of the lattice is evaluated; it stops the work by raising.
 
     Returns
     -------
-    (vertices float64 (v, 3), faces int64 (f, 3) with outward winding, report
-    with ``grid``, ``components``, ``components_kept``, ``watertight``).
+    vertices : ndarray, shape (v, 3), float64
+        In the box's units.
+    faces : ndarray, shape (f, 3), int64
+        Outward winding.
+    report : dict
+        ``grid`` (lattice vertices per axis), ``cell`` (the cell, box units),
+        ``components``, ``components_kept``, ``watertight``.
+
+    Raises
+    ------
+    GeometryError
+        When the field is nowhere negative (no surface).
+
+    Notes
+    -----
     The border layer of the grid is forced outside, so a field that never
     turns positive near the border still yields closed (if spurious) shells,
     which then carry no points and are dropped.
-
-    Raises :class:`~cam.GeometryError` when the field is nowhere negative (no surface).
     """
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
@@ -119,7 +134,18 @@ def _signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
 
 
 def is_watertight(faces: np.ndarray) -> bool:
-    """True when every directed edge appears once and its reverse once (closed, consistently wound)."""
+    """Whether a triangle mesh is closed and consistently wound.
+
+    Parameters
+    ----------
+    faces : ndarray, shape (f, 3), integer dtype
+        Triangles.
+
+    Returns
+    -------
+    bool
+        True when every directed edge appears once and its reverse once; False for no faces.
+    """
     if len(faces) == 0:
         return False
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])

@@ -36,12 +36,29 @@ class NormalsError(GeometryError):
 
 
 def check_normals(normals: np.ndarray, n_points: int) -> np.ndarray:
-    """Validate given normals and return them as float64 unit vectors, shape (n, 3).
+    """Validate given normals and scale them to unit length.
 
-    Raises :class:`NormalsError` naming how many rows are non-finite or of
-    (near) zero length; such normals carry no direction and would silently
-    bias the fit, so they are refused rather than patched. A shape other than
-    (n_points, 3) is the caller's bug: ``ValueError``.
+    Rows that are non-finite or of (near) zero length carry no direction and
+    would silently bias the fit, so they are refused rather than patched.
+
+    Parameters
+    ----------
+    normals : ndarray, shape (n_points, 3), real dtype
+        Normals of any length.
+    n_points : int
+        Number of points they belong to.
+
+    Returns
+    -------
+    ndarray, shape (n_points, 3), float64
+        Unit vectors.
+
+    Raises
+    ------
+    NormalsError
+        Naming how many rows are non-finite or shorter than 1e-12.
+    ValueError
+        For a shape other than (n_points, 3) (the caller's bug).
     """
     nrm = np.asarray(normals, dtype=np.float64)
     if nrm.shape != (n_points, 3):
@@ -69,11 +86,11 @@ def estimate_normals(
 
     Parameters
     ----------
-    points
-        float64 (n, 3), any unit; n > k.
-    k
+    points : ndarray, shape (n, 3), float64
+        Positions, any unit; n > k.
+    k : int
         Neighbours used for the plane fit and for the orientation graph.
-    noise_adaptive
+    noise_adaptive : bool
         Widen the neighbourhood on a noisy cloud. The noise is read as the
         median RMS distance of each point's k neighbours from their plane, in
         units of the median point spacing (about 0 on a clean scan of a CAD part,
@@ -82,15 +99,17 @@ def estimate_normals(
         with the neighbours, so k grows in proportion above a ratio of
         NOISE_REFERENCE, up to 4k. A clean cloud keeps k: a wider fit would
         round its sharp edges.
-    workers
+    workers : int
         Threads for the k-NN query.
-    check_cancel
+    check_cancel : callable, optional
         Called between phases; it stops the work by raising.
 
     Returns
     -------
-    (normals float64 (n, 3) unit, outward where the seed rule holds; report
-    dict with ``k`` (the one used), ``noise_ratio``, ``components``, ``flipped_share``).
+    normals : ndarray, shape (n, 3), float64
+        Unit vectors, outward where the seed rule holds.
+    report : dict
+        ``k`` (the one used), ``noise_ratio``, ``components``, ``flipped_share``.
 
     Raises
     ------
@@ -155,9 +174,23 @@ def orient_normals(
 ) -> tuple[np.ndarray, int]:
     """Flip normals to one consistent side along a minimum spanning tree of the k-NN graph.
 
-    ``idx``/``dist`` are the (n, k) neighbour indices and distances (self
-    excluded). Returns the oriented normals and the number of graph components
-    (each is seeded on its own).
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3), float64
+        Positions, any unit.
+    normals : ndarray, shape (n, 3), float64
+        Unit normals of either sign.
+    idx : ndarray, shape (n, k), integer dtype
+        Each point's k nearest neighbours, self excluded.
+    dist : ndarray, shape (n, k), float64
+        Their distances, the points' units.
+
+    Returns
+    -------
+    normals : ndarray, shape (n, 3), float64
+        The input normals, some negated.
+    components : int
+        Components of the neighbour graph (each is seeded on its own).
     """
     n, k = idx.shape
     rows = np.repeat(np.arange(n), k)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from cam import GeometryError
+from cam.params import ReconstructParams
 
 __all__ = ["PRESETS", "resolve_options"]
 
@@ -40,34 +40,29 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
-_BOUNDS = {
-    "iterations": (1, 1_000_000),
-    "batch_size": (16, 1_000_000),
-    "grid_cells": (8, 1024),
-    "width": (8, 2048),
-    "depth": (2, 16),
-    "resolution": (16, 1024),
-    "learning_rate": (1e-7, 1.0),
-}
+_OVERRIDES = ("iterations", "batch_size", "grid_cells", "width", "depth", "resolution", "learning_rate")
 
 
-def resolve_options(preset: str, **overrides: Any) -> dict[str, Any]:
-    """The preset's options with every non-None override applied, bounds checked.
+def resolve_options(params: ReconstructParams) -> dict[str, Any]:
+    """The options of a group's preset, with the group's explicit values applied.
 
-    An unknown preset or an override out of bounds is ``ValueError`` (`ReconstructParams` rules both
-    out); a width given to the grid preset is a :class:`~cam.GeometryError` (the parameters allow it,
-    the preset does not).
+    Parameters
+    ----------
+    params : ReconstructParams
+        ``preset`` names the option set; ``iterations``, ``batch_size``, ``grid_cells``,
+        ``width``, ``depth``, ``resolution`` and ``learning_rate`` replace the preset's value
+        when not None (the group has checked their bounds, and that width and depth are only
+        given to a preset with a network).
+
+    Returns
+    -------
+    dict
+        A fresh copy of ``PRESETS[params.preset]`` with the overrides applied (keys as
+        described above :data:`PRESETS`).
     """
-    if preset not in PRESETS:
-        raise ValueError(f"unknown reconstruction preset {preset!r}; use one of {', '.join(PRESETS)}")
-    opts = dict(PRESETS[preset])
-    for name, value in overrides.items():
-        if value is None:
-            continue
-        low, high = _BOUNDS[name]
-        if not low <= value <= high:
-            raise ValueError(f"{name} must lie in [{low}, {high}], got {value}")
-        opts[name] = int(value) if isinstance(low, int) else float(value)
-    if opts["field"] == "grid" and overrides.get("width") is not None:
-        raise GeometryError(f"width and depth apply to the mlp and paper presets, not to {preset!r}")
+    opts = dict(PRESETS[params.preset])
+    for name in _OVERRIDES:
+        value = getattr(params, name)
+        if value is not None:
+            opts[name] = value
     return opts

@@ -31,24 +31,34 @@ def plane_distance(
     max_distance: float = np.inf,
     check_cancel: CheckCancel | None = None,
 ) -> np.ndarray:
-    """Blended point-to-tangent-plane distance, float64 (m,), same unit as the points.
+    """Blended point-to-tangent-plane distance: a signed distance estimate from oriented points.
 
     Parameters
     ----------
-    queries
-        (m, 3) where to evaluate.
-    points, normals
-        (n, 3) samples and their unit outward normals.
-    spacing
-        Typical sample spacing; the blending width is twice this.
-    k
+    queries : ndarray, shape (m, 3), float64
+        Where to evaluate, the points' units.
+    points, normals : ndarray, shape (n, 3), float64
+        Samples and their unit outward normals.
+    spacing : float
+        Typical sample spacing, the points' units; the blending width is twice this.
+    k : int
         Nearest samples blended.
-    max_distance
+    workers : int
+        Threads for the k-NN queries.
+    tree : cKDTree, optional
+        A tree over ``points``, to reuse one the caller has.
+    max_distance : float
         Only samples this close are blended; a query with none gets NaN. The
         bound makes the k-d tree prune, which matters for the many grid
         vertices far from the cloud (unbounded queries there cost ten times more).
-    check_cancel
+    check_cancel : callable, optional
         Called before each chunk of queries; it stops the work by raising.
+
+    Returns
+    -------
+    ndarray, shape (m,), float64
+        Signed distance (negative inside), the points' units; NaN where no sample is within
+        ``max_distance``.
     """
     tree = tree if tree is not None else cKDTree(points)
     k = int(min(k, len(points)))

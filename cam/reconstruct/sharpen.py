@@ -50,35 +50,44 @@ def sharpen_creases(
 
     Parameters
     ----------
-    vertices
-        float64 (v, 3) positions.
-    faces
-        int64 (f, 3) triangles, consistently wound.
-    feature_size
+    vertices : ndarray, shape (v, 3), float64
+        Positions, any unit.
+    faces : ndarray, shape (f, 3), int64
+        Triangles, consistently wound.
+    feature_size : float
         Width of the bevel to undo, in the vertices' units (the reconstruction
         passes the larger of the field's finest cell and two marching-cubes cells).
-    flat_deg
+    flat_deg : float
         A face is flat when every face within ``feature_size`` of it has a
-        normal within this angle of its own; only flat faces fit planes.
-    cluster_deg
-        Flat faces around a vertex whose normals lie within this angle form one plane.
-    crease_deg
-        Two planes meeting at less than this angle are not a crease (the bench's
-        sharp edges are those over 30 degrees).
-    reach
+        normal within this angle (degrees) of its own; only flat faces fit planes.
+    cluster_deg : float
+        Flat faces around a vertex whose normals lie within this angle (degrees) form one plane.
+    crease_deg : float
+        Two planes meeting at less than this angle (degrees) are not a crease (the
+        bench's sharp edges are those over 30 degrees).
+    reach : float
         Flat faces up to this many feature sizes from a vertex may fit its planes:
         far enough that the field's rounding next to the crease does not tilt them.
-    workers
+    workers : int
         Threads for the k-NN queries.
-    check_cancel
+    check_cancel : callable, optional
         Called between the phases (a few seconds apart on a million faces); it
         stops the work by raising.
 
     Returns
     -------
-    (vertices float64 (v', 3), faces int64 (f', 3), report) with v' >= v:
-    the first v vertices are the input's (some moved), the rest are crease
-    points; the report counts ``moved`` vertices and ``split`` edges.
+    vertices : ndarray, shape (v', 3), float64
+        v' >= v: the first v vertices are the input's (some moved), the rest are
+        crease points; the vertices' units.
+    faces : ndarray, shape (f', 3), int64
+        The triangles, split edges re-triangulated, same winding.
+    report : dict
+        ``moved`` vertices and ``split`` edges (ints).
+
+    Raises
+    ------
+    ValueError
+        When ``feature_size`` is not positive.
     """
     verts = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -86,54 +95,28 @@ def sharpen_creases(
         raise ValueError(f"feature_size must be positive, got {feature_size}")
     if len(faces) == 0:
         return verts.copy(), faces.copy(), {"moved": 0, "split": 0}
-    tri = verts[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = 0.5 * np.linalg.norm(cross, axis=1)
-    normal = cross / np.maximum(2.0 * area, 1e-300)[:, None]
-    centre = tri.mean(axis=1)
-
     check_cancel = check_cancel or (lambda: None)
+    cross, area, normal, centre = _face_geometry(verts, faces)
     flat = _flat_faces(centre, normal, area, feature_size, np.cos(np.radians(flat_deg)), workers)
     check_cancel()
     planes, on_a = _vertex_planes(verts, faces, centre, normal, area, flat, feature_size, reach * feature_size,
                                   np.cos(np.radians(cluster_deg)), np.cos(np.radians(crease_deg)), workers)
     check_cancel()
-    moved = planes["ok"].copy()
-    new_verts = verts.copy()
-    new_verts[moved] = planes["foot"][moved]
-    # A move that turns a face over (several bevel vertices landing on the same plane out of
-    # order) is undone; undoing can turn a neighbour, hence the rounds (each undoes at least one
-    # move, so they end).
-    while True:
-        t = new_verts[faces]
-        moved_normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        # Also undone: a face squashed to under a hundredth of its area (two ends landing together).
-        flipped = (moved_normal * cross).sum(1) <= 0.01 * (cross * cross).sum(1)
-        back = np.zeros(len(verts), dtype=bool)
-        back[faces[flipped].ravel()] = True
-        back &= moved
-        if not back.any():
-            break
-        moved &= ~back
-        new_verts[back] = verts[back]
-
-    # Every vertex carries the plane it now lies on: the chosen crease side for moved ones, its
-    # own tangent plane (area-weighted normal) for the rest.
-    vnormal = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(vnormal, faces[:, k], cross)
-    vnormal /= np.maximum(np.linalg.norm(vnormal, axis=1), 1e-300)[:, None]
-    pn = vnormal
-    pd = (vnormal * new_verts).sum(axis=1)
-    side_n = np.where(on_a[:, None], planes["na"], planes["nb"])
-    side_d = np.where(on_a, planes["da"], planes["db"])
-    pn[moved] = side_n[moved]
-    pd[moved] = side_d[moved]
-
+    new_verts, moved, moved_normal = _move_onto_planes(verts, faces, cross, planes)
+    pn, pd = _carried_planes(faces, cross, new_verts, planes, on_a, moved)
     check_cancel()
     out_verts, out_faces, n_split = _split_crossing_edges(new_verts, faces, moved_normal, pn, pd, moved,
                                                           np.cos(np.radians(crease_deg)))
     return out_verts, out_faces, {"moved": int(moved.sum()), "split": int(n_split)}
+
+
+def _face_geometry(verts, faces):
+    """Per face: the edge cross product (f, 3), area (f,), unit normal (f, 3) and centroid (f, 3)."""
+    tri = verts[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    normal = cross / np.maximum(2.0 * area, 1e-300)[:, None]
+    return cross, area, normal, tri.mean(axis=1)
 
 
 def _flat_faces(centre, normal, area, radius, cos_flat, workers, k=32, chunk=100_000):
@@ -161,30 +144,55 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
     out = {"na": np.zeros((nv, 3)), "nb": np.zeros((nv, 3)), "da": np.zeros(nv), "db": np.zeros(nv),
            "foot": verts.copy(), "ok": np.zeros(nv, dtype=bool)}
     on_a = np.zeros(nv, dtype=bool)
-    cand = np.zeros(nv, dtype=bool)
-    cand[faces[~flat].ravel()] = True
-    cand_ids = np.flatnonzero(cand)
-    flat_ids = np.flatnonzero(flat)
-    _, one_per_voxel = np.unique(np.floor(centre[flat_ids] / (VOXEL * size)).astype(np.int64), axis=0,
-                                 return_index=True)
-    flat_ids = flat_ids[np.sort(one_per_voxel)]
+    cand_ids, flat_ids = _plane_candidates(nv, faces, centre, flat, size)
     if len(cand_ids) == 0 or len(flat_ids) < 2:
         return out, on_a
-    tree = cKDTree(centre[flat_ids])
-    dist, j = tree.query(verts[cand_ids], k=min(NEIGHBOURS, len(flat_ids)), distance_upper_bound=reach,
-                         workers=workers)
-    valid = np.isfinite(dist)
-    j = np.where(valid, j, 0)
-    nbr = flat_ids[j]
+    valid, nbr = _flat_neighbours(verts[cand_ids], centre, flat_ids, reach, workers)
     n = normal[nbr]  # (m, k, 3), nearest first
     w = np.where(valid, area[nbr], 0.0)
     c = centre[nbr]
+    in1, in2, good = _two_clusters(n, valid, cos_cluster)
+    na, da, _ = _fit_plane(n, w, c, in1)
+    nb, db, cb = _fit_plane(n, w, c, in2)
+    good &= (na * nb).sum(1) <= cos_crease
+    foot, choose_a, dmin = _crease_feet(verts[cand_ids], na, da, nb, db, cb)
+    # A vertex farther than a feature size from both planes is on curvature, not on a bevel.
+    good &= dmin <= size
+    out["na"][cand_ids], out["da"][cand_ids] = na, da
+    out["nb"][cand_ids], out["db"][cand_ids] = nb, db
+    out["foot"][cand_ids] = foot  # read only where ok
+    out["ok"][cand_ids] = good
+    on_a[cand_ids] = choose_a
+    return out, on_a
+
+
+def _plane_candidates(n_verts, faces, centre, flat, size):
+    """int ids of the vertices of non-flat faces, and of the flat faces that may fit planes."""
+    cand = np.zeros(n_verts, dtype=bool)
+    cand[faces[~flat].ravel()] = True
+    flat_ids = np.flatnonzero(flat)
+    _, one_per_voxel = np.unique(np.floor(centre[flat_ids] / (VOXEL * size)).astype(np.int64), axis=0,
+                                 return_index=True)
+    return np.flatnonzero(cand), flat_ids[np.sort(one_per_voxel)]
+
+
+def _flat_neighbours(points, centre, flat_ids, reach, workers):
+    """bool (m, k) found and int (m, k) face ids of the flat faces nearest each point, nearest first."""
+    tree = cKDTree(centre[flat_ids])
+    dist, j = tree.query(points, k=min(NEIGHBOURS, len(flat_ids)), distance_upper_bound=reach, workers=workers)
+    valid = np.isfinite(dist)
+    j = np.where(valid, j, 0)
+    return valid, flat_ids[j]
+
+
+def _two_clusters(n, valid, cos_cluster):
+    """The neighbours (m, k) around the nearest one's normal and around the nearest other one's, and
+    bool (m,): exactly these two clusters, with at least three faces each."""
+    rows = np.arange(len(n))
 
     def first(mask):
-        has = mask.any(axis=1)
-        return has, mask.argmax(axis=1)
+        return mask.any(axis=1), mask.argmax(axis=1)
 
-    rows = np.arange(len(cand_ids))
     has1, s1 = first(valid)
     in1 = valid & (np.einsum("mkc,mc->mk", n, n[rows, s1]) >= cos_cluster)
     has2, s2 = first(valid & ~in1)
@@ -192,22 +200,24 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
     rest = valid & ~in1 & ~in2
     # A third cluster (a corner, or curvature the flat test let through) leaves the vertex alone.
     good = has1 & has2 & (in1.sum(1) >= 3) & (in2.sum(1) >= 3) & (rest.sum(1) <= 0.05 * valid.sum(1))
+    return in1, in2, good
 
-    def plane(mask):
-        ww = w * mask
-        nn = (n * ww[:, :, None]).sum(1)
-        nn /= np.maximum(np.linalg.norm(nn, axis=1), 1e-300)[:, None]
-        dd = (np.einsum("mkc,mc->mk", c, nn) * ww).sum(1) / np.maximum(ww.sum(1), 1e-300)
-        cc = (c * ww[:, :, None]).sum(1) / np.maximum(ww.sum(1), 1e-300)[:, None]
-        return nn, dd, cc
 
-    na, da, _ = plane(in1)
-    nb, db, cb = plane(in2)
-    cosab = (na * nb).sum(1)
-    good &= cosab <= cos_crease
+def _fit_plane(n, w, c, mask):
+    """Area-weighted plane of the masked neighbours: unit normal (m, 3), offset (m,), centroid (m, 3)."""
+    ww = w * mask
+    nn = (n * ww[:, :, None]).sum(1)
+    nn /= np.maximum(np.linalg.norm(nn, axis=1), 1e-300)[:, None]
+    dd = (np.einsum("mkc,mc->mk", c, nn) * ww).sum(1) / np.maximum(ww.sum(1), 1e-300)
+    cc = (c * ww[:, :, None]).sum(1) / np.maximum(ww.sum(1), 1e-300)[:, None]
+    return nn, dd, cc
+
+
+def _crease_feet(p, na, da, nb, db, cb):
+    """The nearest point (m, 3) of the sharp surface two planes bound, bool (m,) it is on plane a, and
+    its distance (m,)."""
     # Convex crease: each side's faces lie inside the other side's half-space (outward normals).
     convex = ((na * cb).sum(1) - da) < 0
-    p = verts[cand_ids]
     ga = (na * p).sum(1) - da
     gb = (nb * p).sum(1) - db
     foot_a = p - ga[:, None] * na
@@ -220,16 +230,49 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
     da_dist = np.where(valid_a, np.abs(ga), np.inf)
     db_dist = np.where(valid_b, np.abs(gb), np.inf)
     choose_a = da_dist <= db_dist
-    dmin = np.minimum(da_dist, db_dist)
-    # A vertex farther than a feature size from both planes is on curvature, not on a bevel.
-    good &= dmin <= size
     foot = np.where(choose_a[:, None], foot_a, foot_b)
-    out["na"][cand_ids], out["da"][cand_ids] = na, da
-    out["nb"][cand_ids], out["db"][cand_ids] = nb, db
-    out["foot"][cand_ids] = foot  # read only where ok
-    out["ok"][cand_ids] = good
-    on_a[cand_ids] = choose_a
-    return out, on_a
+    return foot, choose_a, np.minimum(da_dist, db_dist)
+
+
+def _move_onto_planes(verts, faces, cross, planes):
+    """Vertices moved to their feet, bool (v,) moved, and the moved faces' cross products (f, 3)."""
+    moved = planes["ok"].copy()
+    new_verts = verts.copy()
+    new_verts[moved] = planes["foot"][moved]
+    # A move that turns a face over (several bevel vertices landing on the same plane out of
+    # order) is undone; undoing can turn a neighbour, hence the rounds (each undoes at least one
+    # move, so they end).
+    while True:
+        t = new_verts[faces]
+        moved_normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        # Also undone: a face squashed to under a hundredth of its area (two ends landing together).
+        flipped = (moved_normal * cross).sum(1) <= 0.01 * (cross * cross).sum(1)
+        back = np.zeros(len(verts), dtype=bool)
+        back[faces[flipped].ravel()] = True
+        back &= moved
+        if not back.any():
+            return new_verts, moved, moved_normal
+        moved &= ~back
+        new_verts[back] = verts[back]
+
+
+def _carried_planes(faces, cross, new_verts, planes, on_a, moved):
+    """The plane each vertex now lies on: unit normal (v, 3) and offset (v,).
+
+    The chosen crease side for moved vertices, the vertex's own tangent plane (area-weighted
+    normal) for the rest.
+    """
+    vnormal = np.zeros_like(new_verts)
+    for k in range(3):
+        np.add.at(vnormal, faces[:, k], cross)
+    vnormal /= np.maximum(np.linalg.norm(vnormal, axis=1), 1e-300)[:, None]
+    pn = vnormal
+    pd = (vnormal * new_verts).sum(axis=1)
+    side_n = np.where(on_a[:, None], planes["na"], planes["nb"])
+    side_d = np.where(on_a, planes["da"], planes["db"])
+    pn[moved] = side_n[moved]
+    pd[moved] = side_d[moved]
+    return pn, pd
 
 
 def _split_crossing_edges(verts, faces, face_normal, pn, pd, moved, cos_crease):

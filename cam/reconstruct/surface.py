@@ -8,13 +8,15 @@ frame and units.
 What the user can change (too few or only duplicate points, a collinear or flat cloud, normals that
 cannot be oriented, a diverging run, a field with no inside) raises a :class:`~cam.GeometryError`
 (:class:`~cam.reconstruct.normals.NormalsError` and :class:`~cam.reconstruct.train.DivergedError`
-are ones); arrays of the wrong shape, non-finite coordinates and options that `ReconstructParams`
-rules out are a caller's bug and raise ``ValueError``.
+are ones); arrays of the wrong shape, non-finite coordinates and an unknown device are a caller's
+bug and raise ``ValueError``. The options come from a `ReconstructParams`, validated when it was made.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -65,11 +67,11 @@ def reconstruct_surface(
 
     Parameters
     ----------
-    points
-        (n, 3) finite coordinates, any unit (mm in the pipeline); n >= 100 distinct.
-    normals
-        (n, 3) outward normals (any non-zero length) or None to estimate them.
-    params
+    points : ndarray, shape (n, 3), real dtype
+        Finite coordinates, any unit (mm in the pipeline); n >= 100 distinct.
+    normals : ndarray, shape (n, 3), real dtype, or None
+        Outward normals (any non-zero length), or None to estimate them.
+    params : ReconstructParams
         ``preset``: ``"fast"`` (grid pyramid started from the oriented-plane
         distance; the default, about a minute for 50k points on 2 CPU cores),
         ``"mlp"`` (the paper's network at 4x256, sphere start) or ``"paper"``
@@ -94,23 +96,26 @@ def reconstruct_surface(
         them are split at the crease. The field is what IGR trained either way;
         this only changes how its zero set is meshed. False: plain marching cubes.
         ``seed``: the same seed gives the same mesh on CPU.
-    threads
+    threads : int, optional
         Torch and k-NN threads; None keeps torch's setting.
-    device
-        ``"auto"`` (CUDA when available), ``"cpu"`` or ``"cuda"``.
-    progress
+    device : {"auto", "cpu", "cuda"}
+        ``"auto"``: CUDA when available.
+    progress : callable, optional
         ``progress(fraction, message)``, called at least once per iteration.
-    check_cancel
+    check_cancel : callable, optional
         Called every iteration and between phases; it stops the work by raising
         (the exception passes through untouched).
 
     Returns
     -------
-    :class:`Reconstruction`; its report holds ``points``, ``normals``
-    (``"given"`` or ``"estimated"`` and the estimate's details), ``preset``,
-    the effective ``options``, ``training`` (``iterations``, final loss
-    terms), ``mesh`` (vertex and face counts, ``watertight``, components) and
-    ``timings_s``.
+    Reconstruction
+        ``vertices`` float64 (v, 3) in the input's units and frame, ``faces``
+        int64 (f, 3) wound outward, and the report: ``points``, ``normals``
+        (``"given"`` or ``"estimated"`` and the estimate's details), ``preset``,
+        the effective ``options``, ``device``, ``threads``, ``normalisation``
+        (``centre`` in input units, ``scale``), ``training`` (``iterations``,
+        final loss terms), ``mesh`` (vertex and face counts, ``watertight``,
+        components, ``cell_units``) and ``timings_s`` (seconds).
 
     Raises
     ------
@@ -121,110 +126,38 @@ def reconstruct_surface(
         a diverging training run (:class:`~cam.reconstruct.train.DivergedError`),
         or a field in which no surface was found.
     ValueError
-        For arrays of the wrong shape, non-finite coordinates, or options out of range.
+        For arrays of the wrong shape, non-finite coordinates, or an unknown ``device``.
     """
     started = time.perf_counter()
     timings: dict[str, float] = {}
     check_cancel = check_cancel or _no_cancel
-    preset = params.preset
-    eikonal_weight, normal_weight = params.eikonal_weight, params.normal_weight
-    normals_k, max_faces, sharpen, seed = params.normals_k, params.max_faces, params.sharpen, params.seed
-
-    opts = resolve_options(preset, iterations=params.iterations, batch_size=params.batch_size,
-                           grid_cells=params.grid_cells, width=params.width, depth=params.depth,
-                           resolution=params.resolution, learning_rate=params.learning_rate)
-    if not (np.isfinite(eikonal_weight) and eikonal_weight >= 0 and np.isfinite(normal_weight)
-            and normal_weight >= 0):
-        raise ValueError(f"eikonal_weight and normal_weight must be finite and >= 0, got {eikonal_weight} "
-                         f"and {normal_weight}")
-    if not 3 <= normals_k <= 200:
-        raise ValueError(f"normals_k must lie in [3, 200], got {normals_k}")
-    if max_faces is not None and max_faces < 1000:
-        raise ValueError(f"max_faces must be at least 1000 (or None), got {max_faces}")
-    if device not in ("auto", "cpu", "cuda"):
-        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    opts = resolve_options(params)
+    dev = _torch_device(device)
     pts = _check_points(points)
-    given = normals is not None
-    nrm = check_normals(normals, len(pts)) if given else None
+    nrm = check_normals(normals, len(pts)) if normals is not None else None
     workers = threads or 1
-    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
-                       ("cpu" if device == "auto" else device))
+    centre, scale, unit = _normalise(pts)
 
-    # Normalise: centre of the box, scale so the farthest point is at radius 1.
-    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
-    scale = float(np.linalg.norm(pts - centre, axis=1).max())
-    unit = (pts - centre) / scale
-
-    t = time.perf_counter()
-    tree = cKDTree(unit)
-    kk = min(opts["sigma_k"], len(unit) - 1)
-    dist, _ = tree.query(unit, k=[2, kk + 1], workers=workers)
-    spacing = float(np.median(dist[:, 0]))
-    sigma = dist[:, 1]
-    normals_report: dict[str, Any] = {"source": "given" if given else "estimated"}
-    if nrm is None:
-        nrm, est = estimate_normals(unit, k=normals_k, workers=workers, check_cancel=check_cancel)
-        normals_report.update(est)
-    timings["normals"] = time.perf_counter() - t
+    with _timed(timings, "normals"):
+        tree, spacing, sigma = _sample_spacing(unit, sigma_k=opts["sigma_k"], workers=workers)
+        nrm, normals_report = _oriented_normals(unit, nrm, k=params.normals_k, workers=workers,
+                                                check_cancel=check_cancel)
     check_cancel()
 
-    lo = unit.min(axis=0)
-    hi = unit.max(axis=0)
-    margin = 0.05 * float((hi - lo).max())
-    lo, hi = lo - margin, hi + margin
-
-    previous_threads = torch.get_num_threads()
-    if threads:
-        torch.set_num_threads(threads)
-    try:
-        t = time.perf_counter()
-        field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel)
-        timings["init"] = time.perf_counter() - t
-        gen = torch.Generator(device=dev).manual_seed(seed)
-        as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=dev)  # noqa: E731
-        settings = TrainSettings(iterations=opts["iterations"], batch_size=opts["batch_size"],
-                                 learning_rate=opts["learning_rate"], lr_final_ratio=opts["lr_final_ratio"],
-                                 schedule=opts["schedule"], lam=eikonal_weight, tau=normal_weight)
-        t = time.perf_counter()
-        training = train_igr(field, as_t(unit), as_t(nrm), as_t(sigma), (as_t(lo), as_t(hi)), settings,
-                             generator=gen, param_groups=groups,
-                             progress=progress_between(progress, 0.05, 0.9) if progress else None,
-                             check_cancel=check_cancel)
-        timings["train"] = time.perf_counter() - t
-
-        def evaluate(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
-            with torch.no_grad():
-                if isinstance(field, GridField):
-                    return field.lattice([xs, ys, zs]).cpu().numpy()
-                q = as_t(np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), axis=-1).reshape(-1, 3))
-                # Chunks bound the MLP's activations (an 8x512 net holds 2 kB per point and layer).
-                f = torch.cat([field(c, with_grad=False)[0] for c in torch.split(q, 65536)])
-                return f.cpu().numpy().reshape(len(xs), len(ys), len(zs))
-
-        t = time.perf_counter()
-        if progress is not None:
-            progress(0.92, "extracting the surface")
-        field_cell = field.cell[-1] if isinstance(field, GridField) else 0.0
-        resolution = opts["resolution"]
-        for _ in range(4):
-            verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=resolution, points=unit,
-                                                        check_cancel=check_cancel)
-            mesh_report["resolution"] = resolution
-            fits = max_faces is None or len(faces) <= max_faces or resolution == 16
-            if fits and sharpen:
-                # Sharpening adds a few per cent of faces, so the cap is checked again after it.
-                verts, faces, mesh_report = _sharpen(verts, faces, mesh_report, field_cell, workers, check_cancel)
-                fits = max_faces is None or len(faces) <= max_faces or resolution == 16
-            if fits:
-                break
-            # Faces grow with the square of the resolution; 0.97 leaves room for the estimate's error.
-            coarser = max(16, min(resolution - 1, int(resolution * np.sqrt(max_faces / len(faces)) * 0.97)))
+    lo, hi = _sampling_box(unit)
+    with _torch_threads(threads):
+        with _timed(timings, "init"):
+            field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, params.seed, dev,
+                                        check_cancel)
+        with _timed(timings, "train"):
+            training = _train(field, groups, unit, nrm, sigma, lo, hi, opts, params, dev, progress, check_cancel)
+        with _timed(timings, "extract"):
             if progress is not None:
-                progress(0.96, f"{len(faces)} faces at {resolution} cells; extracting at {coarser}")
-            resolution = coarser
-        timings["extract"] = time.perf_counter() - t
-    finally:
-        torch.set_num_threads(previous_threads)
+                progress(0.92, "extracting the surface")
+            verts, faces, mesh_report = _extract_within_cap(
+                _lattice_evaluator(field, dev), lo, hi, unit, resolution=opts["resolution"], params=params,
+                field_cell=field.cell[-1] if isinstance(field, GridField) else 0.0, workers=workers,
+                progress=progress, check_cancel=check_cancel)
 
     verts = verts * scale + centre
     mesh_report.update({"vertices": int(len(verts)), "faces": int(len(faces)),
@@ -233,9 +166,10 @@ def reconstruct_surface(
     report = {
         "points": int(len(pts)),
         "normals": normals_report,
-        "preset": preset,
-        "options": {**opts, "eikonal_weight": eikonal_weight, "normal_weight": normal_weight,
-                    "normals_k": normals_k, "max_faces": max_faces, "sharpen": sharpen, "seed": seed},
+        "preset": params.preset,
+        "options": {**opts, "eikonal_weight": params.eikonal_weight, "normal_weight": params.normal_weight,
+                    "normals_k": params.normals_k, "max_faces": params.max_faces, "sharpen": params.sharpen,
+                    "seed": params.seed},
         "device": str(dev),
         "threads": torch.get_num_threads() if threads is None else threads,
         "normalisation": {"centre": centre.tolist(), "scale": scale},
@@ -246,50 +180,12 @@ def reconstruct_surface(
     return Reconstruction(vertices=verts, faces=faces, report=report)
 
 
-def _no_cancel() -> None:
-    pass
-
-
-def _sharpen(verts, faces, report, field_cell, workers, check_cancel):
-    """The creases restored on a marching-cubes mesh (normalised frame); the report gains ``sharpened``."""
-    check_cancel()
-    # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
-    size = max(field_cell, 2.0 * report["cell"])
-    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers,
-                                              check_cancel=check_cancel)
-    report["sharpened"] = sharpened
-    report["watertight"] = is_watertight(faces)
-    return verts, faces, report
-
-
-def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel):
-    """The field and its Adam parameter groups (per-level learning-rate factors for the grid)."""
-    if opts["field"] == "grid":
-        field = GridField(lo, hi, finest_cells=opts["grid_cells"], levels=opts["levels"]).to(dev)
-        # The coarsest level takes the prior everywhere (few vertices, so unbounded queries are
-        # cheap); the finest level adds the detail in a band around the cloud, where training acts.
-        coarse = plane_distance(field.vertices(0), unit, nrm, spacing=spacing, k=opts["prior_k"],
-                                workers=workers, tree=tree, check_cancel=check_cancel)
-        field.set_level(0, torch.as_tensor(coarse))
-        fine_v = field.vertices(-1)
-        band = 4.0 * field.cell[-1]
-        fine = plane_distance(fine_v, unit, nrm, spacing=spacing, k=opts["prior_k"], workers=workers,
-                              tree=tree, max_distance=band, check_cancel=check_cancel)
-        with torch.no_grad():
-            base = field.lattice([np.unique(fine_v[:, a]) for a in range(3)]).reshape(-1).double().cpu().numpy()
-        residual = np.where(np.isfinite(fine), fine - base, 0.0)
-        field.set_level(-1, torch.as_tensor(residual))
-        # Adam moves every touched vertex by about the learning rate whatever its gradient, so the
-        # step is set per level as a fraction of that level's cell: a fixed step would make the
-        # finest level's gradient (value differences over a small cell) noisy.
-        groups = [{"params": [p], "lr_scale": h} for p, h in zip(field.values, field.cell, strict=True)]
-        return field, groups
-    gen = torch.Generator().manual_seed(seed)
-    radius = float(np.linalg.norm(unit, axis=1).mean())
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        field = IGRNetwork(width=opts["width"], depth=opts["depth"], radius=radius, generator=gen)
-    return field.to(dev), None
+def _torch_device(device: str) -> torch.device:
+    if device not in ("auto", "cpu", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
 
 
 def _check_points(points: np.ndarray) -> np.ndarray:
@@ -315,3 +211,164 @@ def _check_points(points: np.ndarray) -> np.ndarray:
         raise GeometryError("the points are coplanar (they lie in one plane, thinner than 0.1 % of their "
                             "size); a flat sheet of points encloses no volume, scan the part from all sides")
     return pts
+
+
+def _normalise(pts: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Centre of the box and the scale that puts the farthest point at radius 1, and the points so mapped."""
+    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    scale = float(np.linalg.norm(pts - centre, axis=1).max())
+    return centre, scale, (pts - centre) / scale
+
+
+def _sample_spacing(unit: np.ndarray, *, sigma_k: int, workers: int) -> tuple[cKDTree, float, np.ndarray]:
+    """The cloud's k-d tree, its median spacing, and each point's eikonal sigma (its sigma_k-th neighbour)."""
+    tree = cKDTree(unit)
+    kk = min(sigma_k, len(unit) - 1)
+    dist, _ = tree.query(unit, k=[2, kk + 1], workers=workers)
+    return tree, float(np.median(dist[:, 0])), dist[:, 1]
+
+
+def _oriented_normals(unit: np.ndarray, nrm: np.ndarray | None, *, k: int, workers: int,
+                      check_cancel: CheckCancel) -> tuple[np.ndarray, dict[str, Any]]:
+    """The given normals, or ones estimated and oriented on the cloud; and the report's ``normals``."""
+    if nrm is not None:
+        return nrm, {"source": "given"}
+    nrm, estimate = estimate_normals(unit, k=k, workers=workers, check_cancel=check_cancel)
+    return nrm, {"source": "estimated", **estimate}
+
+
+def _sampling_box(unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cloud's box grown by 5 % of its longest side: the field's domain and the extraction's."""
+    lo = unit.min(axis=0)
+    hi = unit.max(axis=0)
+    margin = 0.05 * float((hi - lo).max())
+    return lo - margin, hi + margin
+
+
+def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel):
+    """The field and its Adam parameter groups (per-level learning-rate factors for the grid)."""
+    if opts["field"] == "grid":
+        return _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check_cancel)
+    return _make_network(opts, unit, seed, dev), None
+
+
+def _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check_cancel):
+    """A grid pyramid started from the oriented-plane distance, and its per-level parameter groups."""
+    field = GridField(lo, hi, finest_cells=opts["grid_cells"], levels=opts["levels"]).to(dev)
+    # The coarsest level takes the prior everywhere (few vertices, so unbounded queries are
+    # cheap); the finest level adds the detail in a band around the cloud, where training acts.
+    coarse = plane_distance(field.vertices(0), unit, nrm, spacing=spacing, k=opts["prior_k"],
+                            workers=workers, tree=tree, check_cancel=check_cancel)
+    field.set_level(0, torch.as_tensor(coarse))
+    fine_v = field.vertices(-1)
+    band = 4.0 * field.cell[-1]
+    fine = plane_distance(fine_v, unit, nrm, spacing=spacing, k=opts["prior_k"], workers=workers,
+                          tree=tree, max_distance=band, check_cancel=check_cancel)
+    with torch.no_grad():
+        base = field.lattice([np.unique(fine_v[:, a]) for a in range(3)]).reshape(-1).double().cpu().numpy()
+    residual = np.where(np.isfinite(fine), fine - base, 0.0)
+    field.set_level(-1, torch.as_tensor(residual))
+    # Adam moves every touched vertex by about the learning rate whatever its gradient, so the
+    # step is set per level as a fraction of that level's cell: a fixed step would make the
+    # finest level's gradient (value differences over a small cell) noisy.
+    groups = [{"params": [p], "lr_scale": h} for p, h in zip(field.values, field.cell, strict=True)]
+    return field, groups
+
+
+def _make_network(opts, unit, seed, dev):
+    """The paper's MLP, started as the sphere of the cloud's mean radius."""
+    gen = torch.Generator().manual_seed(seed)
+    radius = float(np.linalg.norm(unit, axis=1).mean())
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        field = IGRNetwork(width=opts["width"], depth=opts["depth"], radius=radius, generator=gen)
+    return field.to(dev)
+
+
+def _train(field, groups, unit, nrm, sigma, lo, hi, opts, params: ReconstructParams, dev, progress, check_cancel):
+    """The IGR training run on the normalised cloud; returns its report."""
+    gen = torch.Generator(device=dev).manual_seed(params.seed)
+    settings = TrainSettings(iterations=opts["iterations"], batch_size=opts["batch_size"],
+                             learning_rate=opts["learning_rate"], lr_final_ratio=opts["lr_final_ratio"],
+                             schedule=opts["schedule"], lam=params.eikonal_weight, tau=params.normal_weight)
+    return train_igr(field, _tensor(unit, dev), _tensor(nrm, dev), _tensor(sigma, dev),
+                     (_tensor(lo, dev), _tensor(hi, dev)), settings, generator=gen, param_groups=groups,
+                     progress=progress_between(progress, 0.05, 0.9) if progress else None,
+                     check_cancel=check_cancel)
+
+
+def _lattice_evaluator(field, dev: torch.device):
+    """``evaluate(xs, ys, zs)`` for :func:`extract_surface`: the field on the lattice they span."""
+
+    def evaluate(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            if isinstance(field, GridField):
+                return field.lattice([xs, ys, zs]).cpu().numpy()
+            q = _tensor(np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), axis=-1).reshape(-1, 3), dev)
+            # Chunks bound the MLP's activations (an 8x512 net holds 2 kB per point and layer).
+            f = torch.cat([field(c, with_grad=False)[0] for c in torch.split(q, 65536)])
+            return f.cpu().numpy().reshape(len(xs), len(ys), len(zs))
+
+    return evaluate
+
+
+def _extract_within_cap(evaluate, lo, hi, unit, *, resolution: int, params: ReconstructParams, field_cell: float,
+                        workers: int, progress: Progress | None, check_cancel: CheckCancel):
+    """Marching cubes (and sharpening) at ``resolution``, then on coarser lattices while over ``max_faces``."""
+    max_faces = params.max_faces
+    for _ in range(4):
+        verts, faces, mesh_report = extract_surface(evaluate, lo, hi, resolution=resolution, points=unit,
+                                                    check_cancel=check_cancel)
+        mesh_report["resolution"] = resolution
+        fits = max_faces is None or len(faces) <= max_faces or resolution == 16
+        if fits and params.sharpen:
+            # Sharpening adds a few per cent of faces, so the cap is checked again after it.
+            verts, faces, mesh_report = _sharpen(verts, faces, mesh_report, field_cell, workers, check_cancel)
+            fits = max_faces is None or len(faces) <= max_faces or resolution == 16
+        if fits:
+            break
+        # Faces grow with the square of the resolution; 0.97 leaves room for the estimate's error.
+        coarser = max(16, min(resolution - 1, int(resolution * np.sqrt(max_faces / len(faces)) * 0.97)))
+        if progress is not None:
+            progress(0.96, f"{len(faces)} faces at {resolution} cells; extracting at {coarser}")
+        resolution = coarser
+    return verts, faces, mesh_report
+
+
+def _sharpen(verts, faces, report, field_cell, workers, check_cancel):
+    """The creases restored on a marching-cubes mesh (normalised frame); the report gains ``sharpened``."""
+    check_cancel()
+    # The bevel spans the field's finest cell or two lattice cells, whichever is wider.
+    size = max(field_cell, 2.0 * report["cell"])
+    verts, faces, sharpened = sharpen_creases(verts, faces, feature_size=size, workers=workers,
+                                              check_cancel=check_cancel)
+    report["sharpened"] = sharpened
+    report["watertight"] = is_watertight(faces)
+    return verts, faces, report
+
+
+@contextmanager
+def _torch_threads(threads: int | None) -> Iterator[None]:
+    previous = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+@contextmanager
+def _timed(timings: dict[str, float], name: str) -> Iterator[None]:
+    """Records the seconds the block took as ``timings[name]``."""
+    start = time.perf_counter()
+    yield
+    timings[name] = time.perf_counter() - start
+
+
+def _tensor(a: np.ndarray, dev: torch.device) -> torch.Tensor:
+    return torch.as_tensor(a, dtype=torch.float32, device=dev)
+
+
+def _no_cancel() -> None:
+    pass

@@ -27,6 +27,8 @@ class DivergedError(GeometryError):
 
 @dataclass(frozen=True)
 class TrainSettings:
+    """The schedule and the loss weights of a training run (lam: eikonal, tau: normal term)."""
+
     iterations: int
     batch_size: int
     learning_rate: float
@@ -59,22 +61,45 @@ def train_igr(
     progress: Progress | None = None,
     check_cancel: CheckCancel | None = None,
 ) -> dict:
-    """Minimise the IGR loss over ``field``'s parameters; returns a JSON-ready report.
+    """Minimise the IGR loss over ``field``'s parameters with Adam.
 
-    points (n, 3), normals (n, 3) or None, sigma (n,) live on the field's device
-    in the normalised frame; ``box`` is (lo, hi) for the uniform samples.
-    ``param_groups`` may give per-group learning-rate factors (key ``lr_scale``).
-    ``check_cancel`` is called every iteration and stops training by raising.
+    Parameters
+    ----------
+    field : torch.nn.Module
+        Maps points (B, 3) to ``(f (B,), grad f (B, 3))``.
+    points : Tensor, shape (n, 3), float32
+        The cloud in the normalised frame (unit ball), on the field's device.
+    normals : Tensor, shape (n, 3), float32, or None
+        Their unit normals; None drops the normal term.
+    sigma : Tensor, shape (n,), float32
+        Standard deviation of each point's Gaussian eikonal samples, normalised frame.
+    box : tuple of Tensor, shape (3,), float32
+        (lo, hi) of the uniform eikonal samples.
+    settings : TrainSettings
+        Schedule and loss weights.
+    generator : torch.Generator
+        Source of every sample (on the field's device).
+    param_groups : list of dict, optional
+        Adam parameter groups, each with a learning-rate factor under ``lr_scale``;
+        None: all of the field's parameters at factor 1.
+    progress : callable, optional
+        ``progress(fraction, message)`` after every iteration.
+    check_cancel : callable, optional
+        Called every iteration; it stops training by raising.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``iterations``, ``final`` (``loss``, ``point``, ``normal`` (None without
+        normals), ``eikonal`` at the last iteration) and ``train_s`` (seconds).
+
+    Raises
+    ------
+    DivergedError
+        When the loss becomes NaN or infinite.
     """
-    device, dtype = points.device, points.dtype
-    groups = param_groups or [{"params": list(field.parameters()), "lr_scale": 1.0}]
-    spec = [{"params": g["params"], "lr": settings.learning_rate * g.get("lr_scale", 1.0)} for g in groups]
-    opt = torch.optim.Adam(spec, lr=settings.learning_rate)
-    scales = [g.get("lr_scale", 1.0) for g in groups]
-    lo, hi = box
-    n = len(points)
-    batch = min(settings.batch_size, n)
-    n_uniform = max(1, batch // 8)
+    opt, scales = _adam(field, param_groups, settings)
+    batch = min(settings.batch_size, len(points))
     started = time.perf_counter()
     terms = {}
     for it in range(settings.iterations):
@@ -83,19 +108,7 @@ def train_igr(
         lr = _lr_at(it, settings)
         for group, scale in zip(opt.param_groups, scales, strict=True):
             group["lr"] = lr * scale
-        idx = torch.randint(n, (batch,), generator=generator, device=device)
-        x = points[idx]
-        near = x + torch.randn(batch, 3, generator=generator, device=device, dtype=dtype) * sigma[idx, None]
-        uniform = lo + (hi - lo) * torch.rand(n_uniform, 3, generator=generator, device=device, dtype=dtype)
-        f, g = field(torch.cat([x, near, uniform]))
-        fx, gx, gs = f[:batch], g[:batch], g[batch:]
-        point_term = fx.abs().mean()
-        eikonal = ((gs.norm(dim=1) - 1.0) ** 2).mean()
-        loss = point_term + settings.lam * eikonal
-        normal_term = None
-        if normals is not None:
-            normal_term = (gx - normals[idx]).norm(dim=1).mean()
-            loss = loss + settings.tau * normal_term
+        loss, parts = _igr_loss(field, points, normals, sigma, box, settings, batch=batch, generator=generator)
         if not torch.isfinite(loss):
             raise DivergedError(
                 f"training diverged: the loss became {float(loss.detach())} at iteration {it + 1}; "
@@ -107,14 +120,38 @@ def train_igr(
         if progress is not None:
             progress((it + 1) / settings.iterations, f"iteration {it + 1}/{settings.iterations}")
         if it == settings.iterations - 1:
-            terms = {
-                "loss": float(loss.detach()),
-                "point": float(point_term.detach()),
-                "normal": None if normal_term is None else float(normal_term.detach()),
-                "eikonal": float(eikonal.detach()),
-            }
+            terms = {"loss": float(loss.detach()),
+                     **{k: None if v is None else float(v.detach()) for k, v in parts.items()}}
     return {
         "iterations": settings.iterations,
         "final": terms,
         "train_s": round(time.perf_counter() - started, 3),
     }
+
+
+def _adam(field: torch.nn.Module, param_groups: list[dict] | None, settings: TrainSettings):
+    """Adam over the parameter groups, and each group's learning-rate factor."""
+    groups = param_groups or [{"params": list(field.parameters()), "lr_scale": 1.0}]
+    spec = [{"params": g["params"], "lr": settings.learning_rate * g.get("lr_scale", 1.0)} for g in groups]
+    return torch.optim.Adam(spec, lr=settings.learning_rate), [g.get("lr_scale", 1.0) for g in groups]
+
+
+def _igr_loss(field, points, normals, sigma, box, settings: TrainSettings, *, batch: int,
+              generator: torch.Generator):
+    """The loss on one random batch, and its ``point``, ``normal`` (None without normals) and ``eikonal`` terms."""
+    device, dtype = points.device, points.dtype
+    lo, hi = box
+    idx = torch.randint(len(points), (batch,), generator=generator, device=device)
+    x = points[idx]
+    near = x + torch.randn(batch, 3, generator=generator, device=device, dtype=dtype) * sigma[idx, None]
+    uniform = lo + (hi - lo) * torch.rand(max(1, batch // 8), 3, generator=generator, device=device, dtype=dtype)
+    f, g = field(torch.cat([x, near, uniform]))
+    fx, gx, gs = f[:batch], g[:batch], g[batch:]
+    point_term = fx.abs().mean()
+    eikonal = ((gs.norm(dim=1) - 1.0) ** 2).mean()
+    loss = point_term + settings.lam * eikonal
+    normal_term = None
+    if normals is not None:
+        normal_term = (gx - normals[idx]).norm(dim=1).mean()
+        loss = loss + settings.tau * normal_term
+    return loss, {"point": point_term, "normal": normal_term, "eikonal": eikonal}

@@ -1,17 +1,17 @@
 """The `remesh` stage: a checked quad mesh of the denoised triangle mesh.
 
-`quadriflow` runs QuadriFlow (in the child process of `child`, with a timeout) and keeps the best
-checked candidate; `check` inspects and repairs a quad mesh; `creases` measures how much of the
-input's creases the quad edges follow.
+`quadriflow` holds the entry point: it runs QuadriFlow several times (`process`, in the child process
+of `child`, with a timeout), brings each result onto the input and checks it (`accept`), and keeps the
+one whose edges follow the most of the input's creases (`creases`). `check` inspects a quad mesh,
+`repair` fixes what is small and safe, and `holes` closes the triangular holes QuadriFlow leaves.
 """
 
+from cam.remesh.process import QuadriflowFailed, run_quadriflow
 from cam.remesh.quadriflow import (
-    QuadriflowFailed,
     RemeshFailed,
     RemeshResult,
     boundary_loop_count,
     remesh_quads,
-    run_quadriflow,
 )
 
 __all__ = ["QuadriflowFailed", "RemeshFailed", "RemeshResult", "boundary_loop_count", "remesh_quads",

@@ -67,10 +67,28 @@ class SetupBase:
 
 def spherical_kmeans(points: np.ndarray, weights: np.ndarray, k: int, rng: np.random.Generator,
                      iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted k-means of unit vectors under cosine similarity.
+    """Weighted k-means of unit vectors under cosine similarity, seeded k-means++ style.
 
-    Returns labels int64 (n,) and unit centres float64 (k', 3) with k' ≤ k
-    (clusters that end up empty are dropped and the labels renumbered).
+    Parameters
+    ----------
+    points
+        float (n, 3) unit vectors.
+    weights
+        float (n,) positive weights (face areas, mm²).
+    k
+        Clusters wanted; at most n are made.
+    rng
+        Generator for the seeding.
+    iterations
+        Most assignment rounds.
+
+    Returns
+    -------
+    labels : ndarray
+        int64 (n,) cluster of each point.
+    centres : ndarray
+        float64 (k', 3) unit mean directions, k' ≤ k (clusters that end up empty are dropped and the
+        labels renumbered).
     """
     n = len(points)
     k = max(1, min(k, n))
@@ -100,7 +118,22 @@ def spherical_kmeans(points: np.ndarray, weights: np.ndarray, k: int, rng: np.ra
 
 
 def setup_transform(vertices: np.ndarray, tool_axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation taking ``tool_axis`` to +Z and the translation that puts the part on z = 0, centred in x and y."""
+    """Rotation taking ``tool_axis`` to +Z and the translation that puts the part on z = 0, centred in x and y.
+
+    Parameters
+    ----------
+    vertices
+        float (n, 3), mm: the part.
+    tool_axis
+        float (3,), any length: the tool axis in the part frame.
+
+    Returns
+    -------
+    rotation : ndarray
+        float64 (3, 3).
+    translation : ndarray
+        float64 (3,), mm: machine point = rotation · part point + translation.
+    """
     t = np.asarray(tool_axis, dtype=np.float64)
     t = t / np.linalg.norm(t)
     z = np.array([0.0, 0.0, 1.0])
@@ -137,21 +170,25 @@ def find_setup_base(
         float (n, 3), mm.
     topo
         Connectivity of the whole quad mesh.
-    normals, areas
-        float (m, 3) unit face normals and (m,) face areas.
+    normals
+        float (m, 3) unit face normals.
+    areas
+        float (m,) face areas, mm².
     sharp
         bool (ne,): sharp edges of ``topo``; base faces do not connect across them.
     clusters
-        k ≥ 1.
+        k of the k-means (≥ 1, as :class:`cam.params.SegmentParams` holds it).
     mu, gamma
-        Weights of S and Γ, ≥ 0.
+        Weights of S and Γ (≥ 0, as the group holds them).
     rng
         Generator for the k-means seeding.
+
+    Returns
+    -------
+    SetupBase
+        The base faces int64 (b,) (sorted), the unit tool axis float64 (3,), the setup rotation float64
+        (3, 3) and translation float64 (3,) mm, and each cluster's figures.
     """
-    if clusters < 1:
-        raise ValueError(f"clusters must be ≥ 1, got {clusters}")
-    if mu < 0 or gamma < 0:
-        raise ValueError(f"mu and gamma must be ≥ 0, got {mu}, {gamma}")
     weights = np.maximum(areas, 1e-300)
     labels, centres = spherical_kmeans(normals, weights, clusters, rng)
     total = weights.sum()

@@ -31,14 +31,31 @@ from cam import CheckCancel
 from cam.mesh.quads import QuadTopology, prev_he, vertex_fans
 from cam.segment.traces import Trace, trace_line
 
-__all__ = ["CutState", "complete_cuts", "cut_open_cylinders"]
+__all__ = ["CutState", "complete_cuts", "cut_open_cylinders", "patch_labels"]
 
 
 class CutState:
     """Mutable set of clipping edges over a topology, with what the completion asks of it.
 
-    ``cut`` is bool (ne,); boundary edges are always in it. ``on_cut`` counts
-    the clipping edges at each vertex.
+    Parameters
+    ----------
+    topo
+        Connectivity of the domain.
+    straight
+        int64 (4m,): its :func:`cam.segment.traces.straight_continuation`.
+    vertices
+        float (n, 3), mm (line lengths).
+    cut
+        bool (ne,): the clipping edges to start from, indexed like ``topo.edges`` (copied).
+
+    Attributes
+    ----------
+    cut
+        bool (ne,): the clipping edges; boundary edges are always in it.
+    on_cut
+        int64 (n,): clipping edges at each vertex.
+    length
+        float64 (ne,): edge lengths, mm.
     """
 
     def __init__(self, topo: QuadTopology, straight: np.ndarray, vertices: np.ndarray, cut: np.ndarray) -> None:
@@ -52,6 +69,7 @@ class CutState:
         self.added_lines = 0
 
     def fans(self, v: int) -> list[tuple[list[int], bool]]:
+        """The fans of faces around ``v`` (see :func:`cam.mesh.quads.vertex_fans`), computed once per vertex."""
         if v not in self._fans:
             self._fans[v] = vertex_fans(self.topo, v)
         return self._fans[v]
@@ -77,6 +95,7 @@ class CutState:
         return trace_line(self.topo, self.straight, h, stop=lambda g: on_cut[dest[g]] > 0)
 
     def trace_cost(self, t: Trace) -> float:
+        """Length, mm, of the trace's edges that are not clipping edges yet: what adding it costs."""
         edges = self.topo.edge_of[list(t.half_edges)]
         return float(self.length[edges][~self.cut[edges]].sum())
 
@@ -113,12 +132,24 @@ class CutState:
 
 def complete_cuts(state: CutState, *, vertices_to_check: np.ndarray | list[int] | None = None,
                   check_cancel: CheckCancel | None = None) -> int:
-    """Add clipping lines until no vertex has a bad sector; returns how many lines were added.
+    """Add clipping lines until no vertex has a bad sector.
 
     Lines are added shortest first (a heap of proposals, each re-checked
     when it comes up, since earlier lines shorten or remove later ones).
-    ``vertices_to_check``: int (k,) vertices to start from (default: those on a clipping edge and the
-    irregular ones). ``check_cancel`` is called every 64 lines; what it raises propagates.
+
+    Parameters
+    ----------
+    state
+        The clipping edges so far; lines are added to it in place.
+    vertices_to_check
+        int (k,) vertices to start from (default: those on a clipping edge and the irregular ones).
+    check_cancel
+        Called every 64 lines; what it raises propagates.
+
+    Returns
+    -------
+    int
+        Lines added.
     """
     topo = state.topo
     if vertices_to_check is None:
@@ -161,7 +192,20 @@ def complete_cuts(state: CutState, *, vertices_to_check: np.ndarray | list[int] 
 
 
 def patch_labels(topo: QuadTopology, cut: np.ndarray) -> np.ndarray:
-    """int64 (m,): patch id of each face, faces joined across non-clipping edges, numbered by first face."""
+    """Patches of faces joined across non-clipping edges.
+
+    Parameters
+    ----------
+    topo
+        Connectivity of the domain.
+    cut
+        bool (ne,): clipping edges, indexed like ``topo.edges``.
+
+    Returns
+    -------
+    ndarray
+        int64 (m,) patch id of each face; patches are numbered in the order of their lowest face.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -185,9 +229,19 @@ def corner_counts(topo: QuadTopology, cut: np.ndarray, labels: np.ndarray) -> np
 
 
 def cut_open_cylinders(state: CutState, *, check_cancel: CheckCancel | None = None) -> int:
-    """Cut every patch without corners (annulus, torus) with its shortest grid line; returns lines added.
+    """Cut every patch without corners (annulus, torus) with its shortest grid line.
 
-    ``check_cancel`` is called after each line; what it raises propagates.
+    Parameters
+    ----------
+    state
+        The clipping edges so far; lines are added to it in place.
+    check_cancel
+        Called after each line; what it raises propagates.
+
+    Returns
+    -------
+    int
+        Lines added (one per patch without corners).
     """
     topo = state.topo
     labels = patch_labels(topo, state.cut)

@@ -27,6 +27,7 @@ vertices left as leaves are pruned (they are Steiner points, not terminals).
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,7 +67,20 @@ class ConnectionGraph:
 
 
 def kruskal(n_nodes: int, edges: list[tuple[float, int, int]]) -> list[int]:
-    """Indices of the edges ``(weight, a, b)`` in a minimum spanning forest (ties: lower index first)."""
+    """Kruskal's minimum spanning forest.
+
+    Parameters
+    ----------
+    n_nodes
+        Nodes are 0 .. n_nodes - 1.
+    edges
+        ``(weight, a, b)`` per edge.
+
+    Returns
+    -------
+    list of int
+        Indices into ``edges`` of the forest's edges, in the order taken (by weight; ties: lower index first).
+    """
     parent = list(range(n_nodes))
 
     def find(x: int) -> int:
@@ -139,28 +153,47 @@ def build_connection_graph(
 
     Parameters
     ----------
-    topo, straight
-        Connectivity of the segmentation domain and its straight continuation.
+    topo
+        Connectivity of the segmentation domain.
+    straight
+        int64 (4m,): its :func:`cam.segment.traces.straight_continuation`.
     vertices
         float (n, 3), mm (edge lengths).
     extraordinary
         bool (n,): the EPs.
     sharp
-        bool (ne,): a-priori sharp edges of ``topo``.
+        bool (ne,): a-priori sharp edges, indexed like ``topo.edges``.
     sc, nc, ac
-        The paper's SC, NC, AC (> 0).
+        The paper's SC, NC, AC (the bounds of :class:`cam.params.SegmentParams`).
+
+    Returns
+    -------
+    ConnectionGraph
+        Its nodes, its edges (weights in mm times the factors), the edges of the spanning forest, and how
+        many lines were traced and dropped.
     """
-    for name, value in (("sc", sc), ("nc", nc), ("ac", ac)):
-        if not value > 0:
-            raise ValueError(f"{name} must be > 0, got {value}")
-    edge_of = topo.edge_of
-    dest = topo.dest
     feature = sharp | topo.boundary_edge
     comp = _feature_components(topo, feature)
-    sharp_degree = np.bincount(topo.edges[sharp].reshape(-1), minlength=topo.n_vertices)
-    feature_degree = np.bincount(topo.edges[feature].reshape(-1), minlength=topo.n_vertices)
+    stop = _line_stop(topo, straight, extraordinary, sharp, feature)
+    lines, dropped = _trace_ep_lines(topo, straight, extraordinary, stop)
     length = np.linalg.norm(vertices[topo.edges[:, 0]] - vertices[topo.edges[:, 1]], axis=1)
     cost = length * np.where(sharp, sc, 1.0)
+    nodes, edges = _graph_of_lines(topo, lines, extraordinary, comp, cost, nc=nc, ac=ac)
+    mst = _prune_steiner_leaves(nodes, edges, kruskal(len(nodes), [(e.weight, e.a, e.b) for e in edges]))
+    return ConnectionGraph(nodes=tuple(nodes), edges=tuple(edges), mst=tuple(sorted(mst)),
+                           connections=len(lines), dropped_lines=dropped)
+
+
+#: A traced line: its half-edges, its vertices (start, then the end of each half-edge) and its kind.
+_Line = tuple[tuple[int, ...], tuple[int, ...], str]
+
+
+def _line_stop(topo: QuadTopology, straight: np.ndarray, extraordinary: np.ndarray, sharp: np.ndarray,
+               feature: np.ndarray) -> Callable[[int], bool]:
+    """The stop rule of a connection line: True after half-edge h when the line ends at h's end vertex."""
+    edge_of, dest = topo.edge_of, topo.dest
+    sharp_degree = np.bincount(topo.edges[sharp].reshape(-1), minlength=topo.n_vertices)
+    feature_degree = np.bincount(topo.edges[feature].reshape(-1), minlength=topo.n_vertices)
 
     def stop(h: int) -> bool:
         w = int(dest[h])
@@ -173,7 +206,17 @@ def build_connection_graph(
         along = sharp[edge_of[h]] and nxt >= 0 and sharp[edge_of[nxt]] and sharp_degree[w] == 2
         return not along
 
-    lines: dict[tuple[int, ...], tuple[tuple[int, ...], tuple[int, ...], str]] = {}
+    return stop
+
+
+def _trace_ep_lines(topo: QuadTopology, straight: np.ndarray, extraordinary: np.ndarray,
+                    stop: Callable[[int], bool]) -> tuple[dict[tuple[int, ...], _Line], int]:
+    """Every line leaving an EP that ends by the stop rule, once per set of edges, and how many were dropped.
+
+    A line traced from both of its ends is kept as first traced (EPs in index order).
+    """
+    edge_of = topo.edge_of
+    lines: dict[tuple[int, ...], _Line] = {}
     dropped = 0
     for v in np.flatnonzero(extraordinary).tolist():
         for h in topo.outgoing(v).tolist():
@@ -184,14 +227,18 @@ def build_connection_graph(
             kind = "standard" if extraordinary[t.end] else "nf"
             key = tuple(sorted(int(edge_of[g]) for g in t.half_edges))
             lines.setdefault(key, (t.half_edges, t.vertices, kind))
+    return lines, dropped
 
-    # Vertices inside two or more lines become auxiliary nodes.
-    inner_count: dict[int, int] = {}
-    for _, verts, _ in lines.values():
-        for w in verts[1:-1]:
-            inner_count[w] = inner_count.get(w, 0) + 1
-    aux = {w for w, c in inner_count.items() if c >= 2}
 
+def _graph_of_lines(topo: QuadTopology, lines: dict[tuple[int, ...], _Line], extraordinary: np.ndarray,
+                    comp: np.ndarray, cost: np.ndarray, *, nc: float,
+                    ac: float) -> tuple[list[tuple[str, int]], list[GraphEdge]]:
+    """The graph's nodes (EPs first, in index order, then as the lines meet them) and weighted edges.
+
+    ``cost``: float (ne,) weighted length of each mesh edge, mm; ``comp``: int64 (n,) feature component
+    of each vertex (-1 off the features).
+    """
+    aux = _auxiliary_vertices(lines)
     nodes: list[tuple[str, int]] = []
     index: dict[tuple[str, int], int] = {}
 
@@ -213,7 +260,7 @@ def build_connection_graph(
             a = node("ep", verts[0]) if s == 0 else node("aux", verts[s])
             b = end_node if e == len(verts) - 1 else node("aux", verts[e])
             piece = hes[s:e]
-            weight = float(cost[edge_of[list(piece)]].sum())
+            weight = float(cost[topo.edge_of[list(piece)]].sum())
             piece_kind = kind
             if kind == "nf":
                 weight *= nc
@@ -223,6 +270,13 @@ def build_connection_graph(
             edges.append(GraphEdge(a, b, tuple(piece), weight, piece_kind))
     for v in np.flatnonzero(extraordinary & (comp >= 0)).tolist():
         edges.append(GraphEdge(node("ep", v), node("feature", int(comp[v])), (), 0.0, "attach"))
-    mst = _prune_steiner_leaves(nodes, edges, kruskal(len(nodes), [(e.weight, e.a, e.b) for e in edges]))
-    return ConnectionGraph(nodes=tuple(nodes), edges=tuple(edges), mst=tuple(sorted(mst)),
-                           connections=len(lines), dropped_lines=dropped)
+    return nodes, edges
+
+
+def _auxiliary_vertices(lines: dict[tuple[int, ...], _Line]) -> set[int]:
+    """Vertices inside (not at the ends of) two or more lines: where connection edges cross."""
+    inner_count: dict[int, int] = {}
+    for _, verts, _ in lines.values():
+        for w in verts[1:-1]:
+            inner_count[w] = inner_count.get(w, 0) + 1
+    return {w for w, c in inner_count.items() if c >= 2}

@@ -18,16 +18,23 @@ __all__ = ["motorcycle_cuts"]
 
 def motorcycle_cuts(topo: QuadTopology, straight: np.ndarray, extraordinary: np.ndarray,
                     sharp: np.ndarray) -> np.ndarray:
-    """bool (ne,): clipping edges of the motorcycle graph (sharp and boundary edges included).
+    """Clipping edges of the motorcycle graph.
 
     Parameters
     ----------
-    topo, straight
-        Connectivity of the domain and its straight continuation.
+    topo
+        Connectivity of the domain.
+    straight
+        int64 (4m,): its :func:`cam.segment.traces.straight_continuation`.
     extraordinary
         bool (n,): vertices whose lines are traced (EPs).
     sharp
-        bool (ne,): sharp edges (walls, and their loose ends start motorcycles).
+        bool (ne,): sharp edges (walls, and their loose ends start motorcycles), indexed like ``topo.edges``.
+
+    Returns
+    -------
+    ndarray
+        bool (ne,): the clipping edges, sharp and boundary edges included, indexed like ``topo.edges``.
     """
     cut = sharp | topo.boundary_edge
     edge_of, dest = topo.edge_of, topo.dest

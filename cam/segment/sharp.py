@@ -45,7 +45,20 @@ class SharpFeatures:
 
 
 def chain_edges(edges: np.ndarray, n_vertices: int) -> list[list[int]]:
-    """Chain undirected edges (k, 2) into vertex paths split where a vertex does not have exactly two of them."""
+    """Chain undirected edges into vertex paths, split where a vertex does not have exactly two of them.
+
+    Parameters
+    ----------
+    edges
+        int (k, 2) vertex pairs.
+    n_vertices
+        Number of vertices the indices refer to.
+
+    Returns
+    -------
+    list of list of int
+        Vertex paths; each edge lies on exactly one, and a closed loop repeats its first vertex.
+    """
     adjacency: dict[int, list[int]] = {}
     for e, (a, b) in enumerate(edges.tolist()):
         adjacency.setdefault(a, []).append(e)
@@ -91,14 +104,17 @@ def find_sharp_edges(
     normals
         float (m, 3) unit face normals.
     sharp_angle_deg
-        θ in (0, 180): an interior edge is sharp when its dihedral angle exceeds it.
+        θ, degrees, in (0, 180) (:class:`cam.params.SegmentParams` holds it there): an interior edge is
+        sharp when its dihedral angle exceeds it.
     min_fragment_edges
         Isolated sharp groups with fewer edges are dropped (0 keeps all).
+
+    Returns
+    -------
+    SharpFeatures
+        bool (ne,) sharp edges and float64 (ne,) dihedral angles in degrees, both indexed like
+        ``topo.edges``, the sharp curves and how many edges were dropped as fragments.
     """
-    if not 0 < sharp_angle_deg < 180:
-        raise ValueError(f"sharp_angle_deg must lie in (0, 180), got {sharp_angle_deg}")
-    if min_fragment_edges < 0:
-        raise ValueError(f"min_fragment_edges must be ≥ 0, got {min_fragment_edges}")
     ef = topo.edge_faces
     interior = ef[:, 1] >= 0
     cos = np.ones(len(ef))

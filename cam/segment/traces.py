@@ -48,7 +48,18 @@ class Trace:
 
 
 def straight_continuation(topo: QuadTopology) -> np.ndarray:
-    """int64 (4m,): for each half-edge, the half-edge that continues straight on past its end vertex, or -1."""
+    """The half-edge that continues each half-edge straight on past its end vertex.
+
+    Parameters
+    ----------
+    topo
+        Connectivity of the quad mesh.
+
+    Returns
+    -------
+    ndarray
+        int64 (4m,) half-edge id per half-edge, -1 where the end vertex is not a regular interior vertex.
+    """
     n_he = len(topo.twin)
     h = np.arange(n_he)
     nxt = h - h % 4 + (h + 1) % 4
@@ -71,8 +82,10 @@ def trace_line(
 
     Parameters
     ----------
-    topo, straight
-        The connectivity and its :func:`straight_continuation`.
+    topo
+        The connectivity.
+    straight
+        int64 (4m,): its :func:`straight_continuation`.
     start_he
         First half-edge of the line.
     stop
@@ -80,6 +93,11 @@ def trace_line(
     max_steps
         Cap on the edges walked (default: the number of vertices, which no
         line can exceed without meeting its own track).
+
+    Returns
+    -------
+    Trace
+        The half-edges walked, the vertices passed and why the line ended.
     """
     cap = topo.n_vertices if max_steps is None else max_steps
     origin = topo.faces.reshape(-1)

@@ -4,8 +4,16 @@
 at many parameters at once; `surface_matrix` turns them into the sparse design
 matrix of a tensor-product surface, `evaluate_surface` evaluates a control net
 with all derivatives up to second order in one pass (foot points and curvature
-need them together), and `gram_matrix` / `thin_plate_matrix` give the exact
+need them together), or with ``only=(du, dv)`` that single term of any orders up
+to the degrees, and `gram_matrix` / `thin_plate_matrix` give the exact
 quadratic forms of the bending energy.
+
+`evaluate_surface` is the project's one B-spline surface evaluation:
+`BSplineSurface.evaluate` and `BSplineSurface.derivatives` in `cam.spline.surface`
+call it, and the fit's design matrices use the same basis functions.
+
+Units: knots and parameters are in parameter units, control points and evaluated
+values in mm, and k-th derivatives in mm per parameter unit^k.
 """
 
 from __future__ import annotations
@@ -18,9 +26,23 @@ __all__ = ["find_spans", "basis_functions", "curve_matrix", "surface_rows", "sur
 
 
 def find_spans(knots: np.ndarray, degree: int, t: np.ndarray) -> np.ndarray:
-    """Index i of the knot span [k_i, k_(i+1)) holding each t: int64 (n,), in [degree, count - 1].
+    """Find the index i of the knot span [k_i, k_(i+1)) holding each parameter.
 
     The right end of a clamped vector belongs to the last non-empty span.
+
+    Parameters
+    ----------
+    knots : (count + degree + 1,) float64
+        Clamped knot vector, in parameter units.
+    degree : int
+        Degree p of the basis.
+    t : (n,) float64
+        Parameters, in parameter units.
+
+    Returns
+    -------
+    spans : (n,) int64
+        Span index i for each ``t``, clipped to [degree, count - 1].
     """
     count = knots.size - degree - 1
     spans = np.searchsorted(knots, t, side="right") - 1
@@ -52,11 +74,31 @@ def _values(knots: np.ndarray, degree: int, t: np.ndarray, spans: np.ndarray) ->
 
 def basis_functions(knots: np.ndarray, degree: int, t: np.ndarray, *, derivative: int = 0
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Spans and the non-zero basis functions (or their `derivative`-th derivatives) at `t`.
+    """Compute the spans and the non-zero basis functions (or their `derivative`-th derivatives) at `t`.
 
-    knots: float64 (count + degree + 1,), clamped; t: float64 (n,) inside the knot span.
-    Returns spans int64 (n,) and values float64 (n, degree + 1): column r belongs to
-    control point spans - degree + r.
+    Parameters
+    ----------
+    knots : (count + degree + 1,) float64
+        Clamped knot vector, in parameter units.
+    degree : int
+        Degree p of the basis.
+    t : (n,) float64
+        Parameters inside the knot span, in parameter units; any shape is flattened.
+    derivative : int, optional
+        Order k of the derivative, 0..degree (default 0: the functions themselves).
+
+    Returns
+    -------
+    spans : (n,) int64
+        Knot span index of each parameter (see `find_spans`).
+    values : (n, degree + 1) float64
+        The non-zero basis functions' k-th derivatives, in parameter units^-k (dimensionless for
+        k = 0); column r belongs to control point spans - degree + r.
+
+    Raises
+    ------
+    ValueError
+        If `derivative` is not in 0..degree.
     """
     knots = np.asarray(knots, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64).ravel()
@@ -86,7 +128,31 @@ def _derivative(knots: np.ndarray, tables: list[np.ndarray], spans: np.ndarray, 
 
 
 def curve_matrix(knots: np.ndarray, degree: int, t: np.ndarray, *, derivative: int = 0) -> sp.csr_matrix:
-    """Sparse (n, count) matrix B with B @ control_points = C^(derivative)(t)."""
+    """Build the sparse curve design matrix B with B @ control_points = C^(derivative)(t).
+
+    Parameters
+    ----------
+    knots : (count + degree + 1,) float64
+        Clamped knot vector, in parameter units.
+    degree : int
+        Degree p of the curve.
+    t : (n,) float64
+        Parameters, in parameter units; any shape is flattened.
+    derivative : int, optional
+        Order k of the derivative, 0..degree (default 0).
+
+    Returns
+    -------
+    B : (n, count) scipy.sparse.csr_matrix of float64
+        Design matrix in parameter units^-k; with control points (count, dim) in mm,
+        ``B @ control_points`` is the k-th derivative (n, dim) in mm per parameter unit^k.
+        Row r holds degree + 1 non-zeros.
+
+    Raises
+    ------
+    ValueError
+        If `derivative` is not in 0..degree.
+    """
     knots = np.asarray(knots, dtype=np.float64)
     count = knots.size - degree - 1
     spans, vals = basis_functions(knots, degree, t, derivative=derivative)
@@ -97,8 +163,34 @@ def curve_matrix(knots: np.ndarray, degree: int, t: np.ndarray, *, derivative: i
 
 def surface_rows(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.ndarray, *,
                  degree: tuple[int, int] = (3, 3), du: int = 0, dv: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """The non-zero entries of each row of the design matrix: columns int64 (n, m) and values float64 (n, m),
-    m = (p + 1)(q + 1); column index i * nv + j follows control_points.reshape(-1, 3)."""
+    """Give the non-zero entries of each row of the surface design matrix of ∂^(du+dv)S/∂u^du∂v^dv.
+
+    Parameters
+    ----------
+    knots_u : (nu + p + 1,) float64
+        Clamped knot vector in u, in parameter units.
+    knots_v : (nv + q + 1,) float64
+        Clamped knot vector in v, in parameter units.
+    u, v : (n,) float64
+        Parameters of the n rows, in parameter units; any shape is flattened.
+    degree : tuple of (int, int), optional
+        The degrees (p, q) in u and v (default (3, 3)).
+    du, dv : int, optional
+        Derivative orders in u (0..p) and v (0..q) (default 0).
+
+    Returns
+    -------
+    cols : (n, m) int64
+        Column indices, m = (p + 1)(q + 1); column index i * nv + j follows
+        control_points.reshape(-1, 3).
+    vals : (n, m) float64
+        Products of the basis function derivatives, in parameter units^-(du + dv).
+
+    Raises
+    ------
+    ValueError
+        If `du` is not in 0..p or `dv` is not in 0..q.
+    """
     p, q = degree
     ku = np.asarray(knots_u, dtype=np.float64)
     kv = np.asarray(knots_v, dtype=np.float64)
@@ -116,9 +208,32 @@ def surface_rows(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.
 
 def surface_matrix(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.ndarray, *,
                    degree: tuple[int, int] = (3, 3), du: int = 0, dv: int = 0) -> sp.csr_matrix:
-    """Sparse (n, nu * nv) design matrix of ∂^(du+dv)S/∂u^du∂v^dv at (u, v).
+    """Build the sparse design matrix of ∂^(du+dv)S/∂u^du∂v^dv at (u, v).
 
-    Columns follow control_points.reshape(-1, 3), i.e. index i * nv + j.
+    Parameters
+    ----------
+    knots_u : (nu + p + 1,) float64
+        Clamped knot vector in u, in parameter units.
+    knots_v : (nv + q + 1,) float64
+        Clamped knot vector in v, in parameter units.
+    u, v : (n,) float64
+        Parameters of the n rows, in parameter units; any shape is flattened.
+    degree : tuple of (int, int), optional
+        The degrees (p, q) in u and v (default (3, 3)).
+    du, dv : int, optional
+        Derivative orders in u (0..p) and v (0..q) (default 0).
+
+    Returns
+    -------
+    B : (n, nu * nv) scipy.sparse.csr_matrix of float64
+        Design matrix in parameter units^-(du + dv); columns follow control_points.reshape(-1, 3),
+        i.e. index i * nv + j, so ``B @ control_points.reshape(-1, 3)`` is the derivative (n, 3) in
+        mm per parameter unit^(du + dv).
+
+    Raises
+    ------
+    ValueError
+        If `du` is not in 0..p or `dv` is not in 0..q.
     """
     p, q = degree
     size = (len(knots_u) - p - 1) * (len(knots_v) - q - 1)
@@ -128,10 +243,26 @@ def surface_matrix(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: n
 
 
 def weighted_grams(cols: np.ndarray, vals: np.ndarray, weights: list[np.ndarray], size: int) -> list[sp.csr_matrix]:
-    """B^T diag(w) B for each w in `weights`, B given by its rows (see `surface_rows`): sparse (size, size) each.
+    """Compute B^T diag(w) B for each w in `weights`, B given by its rows (see `surface_rows`).
 
     Rows in one knot cell share their columns, so products are summed per cell (one sparse
     product with the row-to-cell incidence) and one small block per cell is scattered.
+
+    Parameters
+    ----------
+    cols : (n, m) int64
+        Column indices of each row's non-zeros, as from `surface_rows`.
+    vals : (n, m) float64
+        The matching values (parameter units^-k for a k-th derivative design matrix).
+    weights : list of (n,) float64
+        Row weights, one Gram matrix per entry.
+    size : int
+        Number of columns of B (nu * nv).
+
+    Returns
+    -------
+    grams : list of (size, size) scipy.sparse.csr_matrix of float64
+        B^T diag(w) B for each w, in the order of `weights`.
     """
     n, m = cols.shape
     cells, first, inverse = np.unique(cols[:, 0], return_index=True, return_inverse=True)
@@ -148,13 +279,55 @@ def weighted_grams(cols: np.ndarray, vals: np.ndarray, weights: list[np.ndarray]
 
 
 def weighted_rhs(cols: np.ndarray, vals: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
-    """B^T values for the design matrix given by its rows: float64 (size,)."""
+    """Compute B^T values for the design matrix B given by its rows (see `surface_rows`).
+
+    Parameters
+    ----------
+    cols : (n, m) int64
+        Column indices of each row's non-zeros.
+    vals : (n, m) float64
+        The matching values.
+    values : (n,) float64
+        One coordinate of the data per row, in mm.
+    size : int
+        Number of columns of B (nu * nv).
+
+    Returns
+    -------
+    rhs : (size,) float64
+        B^T values, in mm (times the units of `vals`).
+    """
     return np.bincount(cols.ravel(), weights=(vals * values[:, None]).ravel(), minlength=size)
 
 
 def evaluate_curve(knots: np.ndarray, control_points: np.ndarray, t: np.ndarray, *, degree: int = 3,
                    derivatives: int = 0) -> list[np.ndarray]:
-    """[C(t), C'(t), ...] up to `derivatives`, each float64 (n, dim)."""
+    """Evaluate a B-spline curve and its derivatives: [C(t), C'(t), ...] up to `derivatives`.
+
+    Parameters
+    ----------
+    knots : (count + degree + 1,) float64
+        Clamped knot vector, in parameter units.
+    control_points : (count, dim) float64
+        Control points, in mm.
+    t : (n,) float64
+        Parameters, in parameter units; any shape is flattened.
+    degree : int, optional
+        Degree p of the curve (default 3).
+    derivatives : int, optional
+        Highest derivative order, 0..degree (default 0: points only).
+
+    Returns
+    -------
+    values : list of (n, dim) float64
+        ``derivatives + 1`` arrays; entry k is the k-th derivative C^(k)(t), in mm per parameter
+        unit^k (the points themselves in mm).
+
+    Raises
+    ------
+    ValueError
+        If `derivatives` exceeds `degree`.
+    """
     cp = np.asarray(control_points, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64).ravel()
     out = []
@@ -166,9 +339,37 @@ def evaluate_curve(knots: np.ndarray, control_points: np.ndarray, t: np.ndarray,
 
 
 def evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
-                     u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), order: int = 2
-                     ) -> dict[tuple[int, int], np.ndarray]:
-    """Points and partial derivatives up to total `order` (≤ 2): {(du, dv): float64 (n, 3)}."""
+                     u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), order: int = 2,
+                     only: tuple[int, int] | None = None) -> dict[tuple[int, int], np.ndarray]:
+    """Evaluate a B-spline surface: points and partial derivatives up to total `order`, or one term.
+
+    The project's one B-spline evaluation: `BSplineSurface.evaluate` and `BSplineSurface.derivatives`
+    in `cam.spline.surface` call it. Without `only`, all terms up to total `order` (≤ 2) come in one
+    pass; with `only` = (du, dv), that one alone (any orders up to the degrees).
+
+    Parameters
+    ----------
+    knots_u : (nu + p + 1,) float64
+        Clamped knot vector in u, in parameter units.
+    knots_v : (nv + q + 1,) float64
+        Clamped knot vector in v, in parameter units.
+    control_points : (nu, nv, 3) float64
+        Control net in mm, index [i, j] along u then v.
+    u, v : (n,) float64
+        Parameters, in parameter units; any shape is flattened.
+    degree : tuple of (int, int), optional
+        The degrees (p, q) in u and v (default (3, 3)).
+    order : int, optional
+        Highest total order du + dv (≤ 2, default 2); ignored when `only` is given.
+    only : tuple of (int, int), optional
+        A single term (du, dv) to evaluate, of any orders; du > p or dv > q gives zeros.
+
+    Returns
+    -------
+    terms : dict of (int, int) to (n, 3) float64
+        {(du, dv): ∂^(du+dv)S/∂u^du∂v^dv} in mm per parameter unit^(du + dv) ((0, 0): the points, in
+        mm); every du + dv ≤ `order`, or the single key `only`. Orders beyond the degrees are zero.
+    """
     p, q = degree
     cp = np.asarray(control_points, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64).ravel()
@@ -178,33 +379,78 @@ def evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: n
     su = find_spans(ku, p, u)
     sv = find_spans(kv, q, v)
     tu, tv = _values(ku, p, u, su), _values(kv, q, v, sv)
-    bu = [_derivative(ku, tu, su, p, d) for d in range(min(order, p) + 1)]
-    bv = [_derivative(kv, tv, sv, q, d) for d in range(min(order, q) + 1)]
+    if only is not None:
+        # One term: only its two factors' derivatives are made (the planner asks for one at a time).
+        a, b = only
+        if a > p or b > q:
+            return {only: np.zeros((u.size, cp.shape[-1]))}
+        bu = {a: _derivative(ku, tu, su, p, a)}
+        bv = {b: _derivative(kv, tv, sv, q, b)}
+        pairs = [only]
+    else:
+        bu = {d: _derivative(ku, tu, su, p, d) for d in range(min(order, p) + 1)}
+        bv = {d: _derivative(kv, tv, sv, q, d) for d in range(min(order, q) + 1)}
+        pairs = [(a, b) for a in range(order + 1) for b in range(order + 1 - a)]
     iu = su[:, None] - p + np.arange(p + 1)[None, :]
     iv = sv[:, None] - q + np.arange(q + 1)[None, :]
     n = u.size
     flat = (iu[:, :, None] * cp.shape[1] + iv[:, None, :]).reshape(n, (p + 1) * (q + 1))
     net = cp.reshape(-1, cp.shape[-1]).T[:, flat]  # (3, n, (p + 1)(q + 1)); per-coordinate gathers are fastest
     out = {}
-    for a in range(order + 1):
-        for b in range(order + 1 - a):
-            if a < len(bu) and b < len(bv):
-                w = (bu[a][:, :, None] * bv[b][:, None, :]).reshape(n, -1)
-                out[(a, b)] = np.stack([np.einsum("nm,nm->n", w, net[k]) for k in range(len(net))], axis=1)
-            else:
-                out[(a, b)] = np.zeros((n, cp.shape[-1]))
+    for a, b in pairs:
+        if a in bu and b in bv:
+            w = (bu[a][:, :, None] * bv[b][:, None, :]).reshape(n, -1)
+            out[(a, b)] = np.stack([np.einsum("nm,nm->n", w, net[k]) for k in range(len(net))], axis=1)
+        else:
+            out[(a, b)] = np.zeros((n, cp.shape[-1]))
     return out
 
 
 def span_params(knots: np.ndarray, per_span: int) -> np.ndarray:
-    """`per_span` evenly spaced parameters in every non-empty knot span, and the end: float64 (k,)."""
+    """Give `per_span` evenly spaced parameters in every non-empty knot span, and the end.
+
+    Parameters
+    ----------
+    knots : (count + degree + 1,) float64
+        Knot vector, in parameter units.
+    per_span : int
+        Parameters per non-empty span, starting at the span's left end.
+
+    Returns
+    -------
+    t : (k,) float64
+        Increasing parameters in parameter units, k = per_span * (number of non-empty spans) + 1;
+        the last is the right end of the knot vector.
+    """
     breaks = np.unique(np.asarray(knots, dtype=np.float64))
     inner = [np.linspace(a, b, per_span, endpoint=False) for a, b in zip(breaks[:-1], breaks[1:])]
     return np.concatenate(inner + [breaks[-1:]])
 
 
 def gram_matrix(knots: np.ndarray, degree: int, derivative: int) -> np.ndarray:
-    """G[r, s] = ∫ N_r^(d) N_s^(d) dt over the knot span, exact by Gauss–Legendre: float64 (count, count)."""
+    """Compute the Gram matrix G[r, s] = ∫ N_r^(d) N_s^(d) dt over the knot span.
+
+    Exact by Gauss–Legendre (degree + 1 points per non-empty span).
+
+    Parameters
+    ----------
+    knots : (count + degree + 1,) float64
+        Clamped knot vector, in parameter units.
+    degree : int
+        Degree p of the basis.
+    derivative : int
+        Order d of the derivative, 0..degree.
+
+    Returns
+    -------
+    G : (count, count) float64
+        Symmetric Gram matrix, in parameter units^(1 - 2d).
+
+    Raises
+    ------
+    ValueError
+        If `derivative` is not in 0..degree.
+    """
     knots = np.asarray(knots, dtype=np.float64)
     count = knots.size - degree - 1
     xg, wg = np.polynomial.legendre.leggauss(degree + 1)  # exact up to degree 2 * degree + 1
@@ -219,11 +465,34 @@ def gram_matrix(knots: np.ndarray, degree: int, derivative: int) -> np.ndarray:
 
 def thin_plate_matrix(knots_u: np.ndarray, knots_v: np.ndarray, *, degree: tuple[int, int] = (3, 3),
                       length_u: float = 1.0, length_v: float = 1.0) -> sp.csr_matrix:
-    """Sparse (nu * nv, nu * nv) H with c·Hc = ∫∫ |S_xx|² + 2|S_xy|² + |S_yy|² dx dy per coordinate.
+    """Build the thin-plate matrix H with c·Hc = ∫∫ |S_xx|² + 2|S_xy|² + |S_yy|² dx dy per coordinate.
 
     x = u * length_u and y = v * length_v (mm): scaling the parameters by the patch's side lengths
     makes the energy a bending energy of the part, independent of how long the patch is in
     parameter space, so one smoothing weight suits every patch.
+
+    Parameters
+    ----------
+    knots_u : (nu + p + 1,) float64
+        Clamped knot vector in u, in parameter units.
+    knots_v : (nv + q + 1,) float64
+        Clamped knot vector in v, in parameter units.
+    degree : tuple of (int, int), optional
+        The degrees (p, q) in u and v (default (3, 3)); both must be at least 2.
+    length_u, length_v : float, optional
+        The patch's side lengths in mm (per parameter unit), along u and v (default 1.0).
+
+    Returns
+    -------
+    H : (nu * nv, nu * nv) scipy.sparse.csr_matrix of float64
+        Symmetric positive semi-definite matrix in mm^-2, columns in the order i * nv + j of
+        control_points.reshape(-1, 3); for one coordinate c (nu * nv,) in mm, c·Hc is the
+        (dimensionless) bending energy.
+
+    Raises
+    ------
+    ValueError
+        If p or q is less than 2.
     """
     p, q = degree
     G0u, G1u, G2u = (sp.csr_matrix(gram_matrix(knots_u, p, d)) for d in range(3))

@@ -36,7 +36,17 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class Patch:
-    """A surface in the machine frame. id: the patch id of `surfaces.json`; sign: +1 when S_u × S_v is outward."""
+    """A surface in the machine frame.
+
+    Attributes
+    ----------
+    id : int
+        The patch id of `surfaces.json`.
+    surface : BSplineSurface
+        The surface, moved into the setup's machine frame (mm).
+    sign : float
+        +1 when S_u × S_v points out of the material, -1 when it points in.
+    """
 
     id: int
     surface: BSplineSurface
@@ -44,6 +54,7 @@ class Patch:
 
     @property
     def domain(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The surface's parameter rectangle ((u0, u1), (v0, v1)), see `BSplineSurface.domain`."""
         return self.surface.domain
 
 
@@ -51,9 +62,22 @@ class Patch:
 class Frame:
     """Point, first and second derivatives, outward unit normal and both fundamental forms, all (...)-shaped.
 
-    p, su, sv, suu, suv, svv, n: float64 (..., 3) mm; e, f, g: first fundamental form (mm²);
-    l, m, nn: second fundamental form taken against the outward normal with the sign flipped, so
-    that normal curvature κ = (l du² + 2m du dv + nn dv²) / (e du² + 2f du dv + g dv²) is convex-positive.
+    Attributes
+    ----------
+    p : (..., 3) float64
+        Points in mm.
+    su, sv : (..., 3) float64
+        First partial derivatives S_u, S_v in mm per parameter unit.
+    suu, suv, svv : (..., 3) float64
+        Second partial derivatives in mm per parameter unit².
+    n : (..., 3) float64
+        Outward unit normal sign · (S_u × S_v) / |S_u × S_v|; NaN where the surface is degenerate.
+    e, f, g : (...) float64
+        First fundamental form S_u·S_u, S_u·S_v, S_v·S_v (mm² per parameter unit²).
+    l, m, nn : (...) float64
+        Second fundamental form taken against the outward normal with the sign flipped (mm per parameter
+        unit²), so that normal curvature κ = (l du² + 2m du dv + nn dv²) / (e du² + 2f du dv + g dv²) is
+        convex-positive.
     """
 
     p: np.ndarray
@@ -74,7 +98,24 @@ class Frame:
 def transform_surface(surface: BSplineSurface, rotation: np.ndarray, translation: np.ndarray) -> BSplineSurface:
     """The surface moved by x ↦ R·x + t (exact: B-splines are affine invariant).
 
-    rotation: float (3, 3) proper rotation; translation: float (3,) mm.
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The surface to move.
+    rotation : (3, 3) array_like of float
+        R, a proper rotation (orthonormal within 1e-6, determinant > 0).
+    translation : (3,) array_like of float
+        The translation t in mm.
+
+    Returns
+    -------
+    moved : BSplineSurface
+        Same degree, knots and parameterisation; control points R·c + t.
+
+    Raises
+    ------
+    ValueError
+        When rotation is not 3 x 3 or translation not 3 values, or rotation is not a proper rotation.
     """
     rot = np.asarray(rotation, dtype=np.float64)
     tr = np.asarray(translation, dtype=np.float64)
@@ -87,19 +128,53 @@ def transform_surface(surface: BSplineSurface, rotation: np.ndarray, translation
 
 
 def machine_patches(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarray, setup: Setup) -> list[Patch]:
-    """The surfaces moved into the setup's machine frame, with their outward signs."""
+    """The surfaces moved into the setup's machine frame, with their outward signs.
+
+    Parameters
+    ----------
+    ids : list of int
+        Patch ids, one per surface.
+    surfaces : list of BSplineSurface
+        The surfaces in the part frame (mm).
+    signs : (k,) array_like of float
+        +1 or -1 per surface, as `orientation_signs` gives them.
+    setup : Setup
+        The setup whose rotation and translation (mm) take part points to machine points.
+
+    Returns
+    -------
+    patches : list of Patch
+        One per surface, in order.
+
+    Raises
+    ------
+    ValueError
+        When the setup's rotation is not a proper rotation (see `transform_surface`).
+    """
     return [Patch(int(i), transform_surface(s, setup.rotation, setup.translation), float(g))
             for i, s, g in zip(ids, surfaces, signs)]
 
 
 def frame(patch: Patch, u: np.ndarray, v: np.ndarray) -> Frame:
-    """Evaluate everything the planner needs at parameters u, v (float arrays of one shape)."""
+    """Evaluate everything the planner needs at parameters u, v.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch, in the machine frame.
+    u, v : (...) array_like of float
+        Parameters, both of one shape.
+
+    Returns
+    -------
+    frame : Frame
+        Every field shaped (...) or (..., 3).
+    """
     s = patch.surface
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    p = s.evaluate(u, v)
-    su, sv = s.evaluate(u, v, du=1), s.evaluate(u, v, dv=1)
-    suu, suv, svv = s.evaluate(u, v, du=2), s.evaluate(u, v, du=1, dv=1), s.evaluate(u, v, dv=2)
+    d = s.derivatives(u, v, order=2)  # one pass for all six terms
+    p, su, sv, suu, suv, svv = d[0, 0], d[1, 0], d[0, 1], d[2, 0], d[1, 1], d[0, 2]
     cross = np.cross(su, sv) * patch.sign
     length = np.linalg.norm(cross, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -111,21 +186,66 @@ def frame(patch: Patch, u: np.ndarray, v: np.ndarray) -> Frame:
 
 
 def normal_curvature(fr: Frame, du: np.ndarray, dv: np.ndarray) -> np.ndarray:
-    """Signed normal curvature (1/mm, convex > 0) in the tangent direction du·S_u + dv·S_v."""
+    """Signed normal curvature in the tangent direction du·S_u + dv·S_v.
+
+    Parameters
+    ----------
+    fr : Frame
+        The frame at the points.
+    du, dv : (...) array_like of float
+        Components of the direction in parameter units; only the direction counts, not its length.
+
+    Returns
+    -------
+    kappa : (...) float64
+        Curvature in 1/mm, convex (bulging towards the tool) > 0.
+    """
     num = fr.l * du * du + 2 * fr.m * du * dv + fr.nn * dv * dv
     den = fr.e * du * du + 2 * fr.f * du * dv + fr.g * dv * dv
     return num / den
 
 
 def iso_line_frame(patch: Patch, along: str, fixed: float, q: np.ndarray) -> Frame:
-    """Frame on an iso-line at parameters q (float (n,)): along 'u' means v = fixed and u = q."""
+    """Frame on an iso-line at parameters q.
+
+    Parameters
+    ----------
+    patch : Patch
+        The patch, in the machine frame.
+    along : str
+        'u' for the line v = fixed with u = q; 'v' for u = fixed with v = q.
+    fixed : float
+        The parameter that is constant along the line.
+    q : (n,) float64
+        Parameters along the line.
+
+    Returns
+    -------
+    frame : Frame
+        Fields shaped (n,) or (n, 3).
+    """
     if along == "u":
         return frame(patch, q, np.full_like(q, fixed))
     return frame(patch, np.full_like(q, fixed), q)
 
 
 def across_iso_line(fr: Frame, along: str) -> tuple[np.ndarray, np.ndarray]:
-    """Normal curvature across the iso-line and the distance between iso-lines per parameter unit."""
+    """Normal curvature across the iso-line and the distance between iso-lines per parameter unit.
+
+    Parameters
+    ----------
+    fr : Frame
+        The frame on the line (see `iso_line_frame`).
+    along : str
+        'u' for a line v = const (across is S_v minus its part along S_u); 'v' for a line u = const.
+
+    Returns
+    -------
+    kappa : (...) float64
+        Normal curvature in 1/mm (convex > 0) in the tangent direction perpendicular to the line.
+    spacing : (...) float64
+        Distance between neighbouring iso-lines in mm per unit of the fixed parameter.
+    """
     root = np.sqrt(np.maximum(fr.e * fr.g - fr.f ** 2, 1e-300))
     if along == "u":  # line v = const; across is S_v minus its part along S_u
         kappa = normal_curvature(fr, -fr.f / fr.e, np.ones_like(fr.e))
@@ -135,7 +255,18 @@ def across_iso_line(fr: Frame, along: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def principal_curvatures(fr: Frame) -> tuple[np.ndarray, np.ndarray]:
-    """(κ_min, κ_max) in 1/mm from det(II − κ I) = 0, each shaped like the frame."""
+    """Principal curvatures from det(II − κ I) = 0.
+
+    Parameters
+    ----------
+    fr : Frame
+        The frame at the points.
+
+    Returns
+    -------
+    kappa_min, kappa_max : (...) float64
+        Smallest and largest normal curvature in 1/mm (convex > 0), each shaped like the frame.
+    """
     det_i = fr.e * fr.g - fr.f ** 2
     mean = (fr.e * fr.nn - 2 * fr.f * fr.m + fr.g * fr.l) / (2 * det_i)
     gauss = (fr.l * fr.nn - fr.m ** 2) / det_i
@@ -148,11 +279,27 @@ def orientation_signs(surfaces: list[BSplineSurface], *, mesh_vertices: np.ndarr
                       samples: int = 9) -> np.ndarray:
     """+1 or −1 per surface so that sign·(S_u × S_v) points out of the material.
 
-    With a closed mesh (vertices float (n, 3), faces int (m, 3), same frame as the surfaces) the
-    normals are compared with the nearest outward face normals (the mesh is made outward by the
-    sign of its volume). Without one, each patch is taken as a height field seen from `up`
-    (float (3,), the tool axis of the first setup in this frame): the sign that makes the mean
-    normal face it. Returns float64 (len(surfaces),).
+    With a closed mesh the normals are compared with the nearest outward face normals (the mesh is made
+    outward by the sign of its volume). Without one, each patch is taken as a height field seen from
+    `up`: the sign that makes the mean normal face it.
+
+    Parameters
+    ----------
+    surfaces : list of BSplineSurface
+        The surfaces (mm).
+    mesh_vertices : (n, 3) array_like of float or None, optional
+        Vertices of a closed mesh in mm, same frame as the surfaces.
+    mesh_faces : (m, 3) array_like of int or None, optional
+        Its triangles; both mesh arguments are needed for the mesh test.
+    up : (3,) array_like of float or None, optional
+        The tool axis of the first setup in this frame (default +Z); used without a mesh.
+    samples : int, optional
+        Normals compared per direction, on [0.05, 0.95] of the domain (default 9).
+
+    Returns
+    -------
+    signs : (len(surfaces),) float64
+        +1 or -1.
     """
     from scipy.spatial import cKDTree
 
@@ -182,35 +329,81 @@ def orientation_signs(surfaces: list[BSplineSurface], *, mesh_vertices: np.ndarr
 
 @dataclass(frozen=True, eq=False)
 class SubSurface:
-    """A surface seen on a parameter sub-rectangle (u0, u1, v0, v1): same parameters, smaller domain."""
+    """A surface seen on a parameter sub-rectangle (u0, u1, v0, v1): same parameters, smaller domain.
+
+    Attributes
+    ----------
+    base : BSplineSurface
+        The whole surface; evaluation, knots and control points are its own.
+    region : tuple of float
+        The sub-rectangle (u0, u1, v0, v1) in the base's parameters, returned as `domain`.
+    """
 
     base: BSplineSurface
     region: tuple[float, float, float, float]
 
     @property
     def domain(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The sub-rectangle as ((u0, u1), (v0, v1))."""
         u0, u1, v0, v1 = self.region
         return (u0, u1), (v0, v1)
 
     @property
     def control_points(self) -> np.ndarray:
+        """The base surface's control net: (nu, nv, 3) float64, mm."""
         return self.base.control_points
 
     @property
     def knots_u(self) -> np.ndarray:
+        """The base surface's knots in u: (nu + p + 1,) float64."""
         return self.base.knots_u
 
     @property
     def knots_v(self) -> np.ndarray:
+        """The base surface's knots in v: (nv + q + 1,) float64."""
         return self.base.knots_v
 
+    def derivatives(self, u: np.ndarray, v: np.ndarray, *, order: int = 2) -> dict[tuple[int, int], np.ndarray]:
+        """The base surface's points and derivatives (see `BSplineSurface.derivatives`)."""
+        return self.base.derivatives(u, v, order=order)
+
     def evaluate(self, u: np.ndarray, v: np.ndarray, *, du: int = 0, dv: int = 0) -> np.ndarray:
+        """Evaluate the base surface (see `BSplineSurface.evaluate`).
+
+        Parameters
+        ----------
+        u, v : (...) float
+            Parameters, both of one shape; values outside the base's domain are clipped to it, not to
+            `region`.
+        du, dv : int, optional
+            Orders of differentiation in u and in v (default 0: points).
+
+        Returns
+        -------
+        values : (..., 3) float64
+            Points in mm, or derivatives in mm per parameter unit^(du+dv).
+        """
         return self.base.evaluate(u, v, du=du, dv=dv)
 
 
 def surface_area(surface: BSplineSurface, box: tuple[float, float, float, float] | None = None, *,
                  samples: int = 64) -> float:
-    """Area (mm²) of the surface over its domain or the parameter rectangle `box` (midpoint rule)."""
+    """Area of the surface over its domain or the parameter rectangle `box` (midpoint rule).
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The surface (mm).
+    box : tuple of float or None, optional
+        (u0, u1, v0, v1) in parameters; None (default) for the whole domain.
+    samples : int, optional
+        Midpoints per direction (default 64).
+
+    Returns
+    -------
+    area : float
+        In mm².
+    """
     (u0, u1), (v0, v1) = surface.domain
     a, b, c, d = box if box is not None else (u0, u1, v0, v1)
     t = (np.arange(samples) + 0.5) / samples
@@ -220,6 +413,21 @@ def surface_area(surface: BSplineSurface, box: tuple[float, float, float, float]
 
 
 def area_share(surface: BSplineSurface, box: tuple[float, float, float, float], *, samples: int = 64) -> float:
-    """The share of the surface's area inside the parameter rectangle `box`."""
+    """The share of the surface's area inside the parameter rectangle `box`.
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The surface (mm).
+    box : tuple of float
+        (u0, u1, v0, v1) in parameters.
+    samples : int, optional
+        Midpoints per direction of each area (default 64).
+
+    Returns
+    -------
+    share : float
+        Area in `box` over the whole area; 0.0 for a surface of no area.
+    """
     total = surface_area(surface, samples=samples)
     return surface_area(surface, box, samples=samples) / total if total > 0 else 0.0

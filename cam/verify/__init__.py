@@ -1,7 +1,7 @@
 """The `verify` stage: an independent measurement of what the G-code programs leave on the part.
 
-`measure` sweeps the ball along the parsed program and measures scallop, gouge and reach; `sweep`
-holds the swept capsules; `claims` reads what each setup's program claims to finish. Nothing here
+`measure` sweeps the ball along the parsed program (the capsules of `cam.gcode.sweep`) and measures
+scallop, gouge and reach; `claims` reads what each setup's program claims to finish. Nothing here
 imports the planner.
 """
 

@@ -19,6 +19,25 @@ def claimed_patches(entry: dict[str, Any], part: list[Patch]) -> list[Patch]:
     part: every patch of the part in the setup's machine frame; returns those the entry lists under
     `patches`, a patch claimed on k rectangles as k patches. `ReadError` when a `partial` entry is not a
     parameter rectangle inside its patch.
+
+    Parameters
+    ----------
+    entry : dict
+        One setup of `setup.json`: ``"patches"`` (patch ids) and, optionally, ``"partial"``
+        (``{"patch": id, "region": [u0, u1, v0, v1]}`` per claimed rectangle).
+    part : list of Patch
+        Every patch of the part in the setup's machine frame.
+
+    Returns
+    -------
+    list of Patch
+        The listed patches in the order of `part`, each whole or as one patch per claimed rectangle
+        (an exact sub-surface with the same id and sign).
+
+    Raises
+    ------
+    ReadError
+        When a `partial` entry is not a parameter rectangle inside its patch.
     """
     listed = {int(i) for i in entry.get("patches") or []}
     machined = [p for p in part if p.id in listed]

@@ -21,17 +21,30 @@ from scipy.spatial import cKDTree
 
 from cam import CheckCancel
 from cam.gcode.parser import ParsedProgram
+from cam.gcode.sweep import Sweep
+from cam.spline.folds import flipped_normals
 from cam.spline.geometry import Patch
-from cam.spline.surface import flipped_normals
-from cam.verify.sweep import Sweep
 
 __all__ = ["Measurement", "heat_colors", "measure_program"]
 
 
 @dataclass(frozen=True)
 class Measurement:
-    """report: the JSON-ready numbers; vertices float64 (n, 3), faces int64 (m, 3), scallop float64 (n,)
-    (NaN where unreachable, +inf where never reached) and patch int64 (n,) for the heat map."""
+    """What `measure_program` finds: the report and the samples as a heat-map mesh.
+
+    Attributes
+    ----------
+    report : dict
+        The JSON-ready numbers.
+    vertices : (n, 3) float64
+        The samples of every machined patch, mm, machine frame.
+    faces : (m, 3) int64
+        Two triangles per cell of each patch's sample grid, indices into `vertices`.
+    scallop : (n,) float64
+        Material left at each sample, mm (NaN where unreachable, +inf where never reached).
+    patch : (n,) int64
+        The patch id of each sample.
+    """
 
     report: dict
     vertices: np.ndarray
@@ -86,7 +99,20 @@ class _Part:
 
 def heat_colors(scallop: np.ndarray, target: float) -> np.ndarray:
     """uint8 (n, 3): blue → green → yellow → red up to the target, magenta above it, grey unreachable,
-    black never reached."""
+    black never reached.
+
+    Parameters
+    ----------
+    scallop : (n,) float
+        Material left per sample, mm (NaN unreachable, +inf never reached), as `Measurement.scallop`.
+    target : float
+        The target scallop height, mm (> 0).
+
+    Returns
+    -------
+    (n, 3) uint8
+        RGB colour of each sample.
+    """
     x = np.clip(np.nan_to_num(scallop, nan=0.0, posinf=0.0) / target, 0, 1)
     stops = np.array([[40, 60, 220], [40, 200, 80], [240, 220, 40], [220, 40, 30]], float)
     pos = x * (len(stops) - 1)
@@ -178,7 +204,20 @@ def _refine(patch: Patch, sweep: Sweep, solid: _Part, h: np.ndarray, ok: np.ndar
 
 def pass_width_mm(tool_radius_mm: float, target_mm: float) -> float:
     """Width of the pass a ball of radius r leaves `target_mm` beside on a plane, 2·√(h(2r − h)) mm: verify's
-    unit of sample spacing (its own, so that it samples the same way whatever the planner does)."""
+    unit of sample spacing (its own, so that it samples the same way whatever the planner does).
+
+    Parameters
+    ----------
+    tool_radius_mm : float
+        Ball radius r, mm.
+    target_mm : float
+        Scallop height h, mm.
+
+    Returns
+    -------
+    float
+        The pass width, mm.
+    """
     return float(2.0 * np.sqrt(target_mm * (2.0 * tool_radius_mm - target_mm)))
 
 
@@ -278,6 +317,41 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
 
     All patches in the machine frame of the program's setup, signs outward. The sample spacing is
     `pass_width_mm` / samples_per_interval. Returns the report and the samples as a heat-map mesh.
+
+    Parameters
+    ----------
+    program : ParsedProgram
+        The parsed program: straight moves of the tool tip, mm, machine frame; rapids apart.
+    machined : list of Patch
+        The patches the program claims to finish (`claimed_patches`).
+    part : list of Patch
+        Every patch of the part, for the reachability tests.
+    tool_radius_mm : float
+        Ball radius, mm.
+    target_mm : float
+        The target scallop height, mm.
+    samples_per_interval : int
+        Samples per pass width (≥ 2).
+    refine : bool
+        Refine each patch's maximum past the grid (golden-section searches across the ridges, then
+        finer local grids); False takes the grid maximum.
+    reach_tol_mm : float
+        Tolerance of the reachability tests (tangent ball and shank), mm.
+    max_side : int
+        Most grid intervals per parameter direction of a patch.
+    check_cancel : callable or None
+        Called before each patch; it stops the work by raising.
+
+    Returns
+    -------
+    Measurement
+        The report (scallop maximum, 99th percentile and mean, fractions over target, unreachable,
+        folded and never reached, gouges of cutting and rapid moves, per patch entries) and the mesh.
+
+    Raises
+    ------
+    ValueError
+        When `samples_per_interval` is below 2.
     """
     t0 = time.perf_counter()
     r = float(tool_radius_mm)

@@ -11,7 +11,6 @@ import pytest
 import trimesh
 
 from cam import GeometryError
-from cam.denoise.mesh_tgv import PARAMETER_BOUNDS
 from cam.io import read_ply, write_ply_mesh
 from core.params import DenoiseParams, JobParams
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
@@ -84,9 +83,23 @@ def test_a_point_cloud_is_a_clear_error(tmp_path):
         run_denoise(_ctx(tmp_path, src))
 
 
+# name: (default, lower, upper, lower_inclusive); upper is inclusive. The numbers the filter is tuned for.
+FILTER_BOUNDS: dict[str, tuple[float, float, float, bool]] = {
+    "alpha0": (0.15, 0.0, 100.0, False),
+    "alpha1": (0.4, 0.0, 100.0, False),
+    "penalty0": (2.0, 0.0, 1000.0, False),
+    "penalty1": (2.0, 0.0, 1000.0, False),
+    "vertex_iterations": (20, 0, 1000, True),
+    "flip_repair_rounds": (5, 0, 100, True),
+    "max_iterations": (100, 1, 10000, True),
+    "tolerance": (1e-5, 0.0, 1.0, True),
+    "noise_reference_deg": (15.0, 0.0, 180.0, True),
+}
+
+
 def test_jobparams_carry_the_cores_defaults_and_bounds():
     defaults = DenoiseParams()
-    for name, (default, low, high, low_inclusive) in PARAMETER_BOUNDS.items():
+    for name, (default, low, high, low_inclusive) in FILTER_BOUNDS.items():
         assert getattr(defaults, name) == default, name
         DenoiseParams(**{name: high})
         with pytest.raises(pydantic.ValidationError):

@@ -123,7 +123,7 @@ def test_foot_points_cross_a_c0_line():
     # at 76 degrees (a border round a corner); its v = 1 border stays straight. Each piece is
     # bilinear, so its net is the map at the Greville abscissae. Points on it must get distance
     # 0 and their own foot, whichever piece Newton starts in, and without a start.
-    from cam.fit.param import distance_to_surface, project_points
+    from cam.fit.foot import distance_to_surface, project_points
 
     ku = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2.0])
     kv = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
@@ -152,7 +152,7 @@ def _bent_sheet():
 def test_piece_boxes_bound_the_distance_to_the_piece():
     # Against the nearest of 201 x 201 samples of each piece (which is at least the true distance):
     # the bound never exceeds it, it is zero for points on the piece, and it prunes far points.
-    from cam.spline.surface import c0_pieces, make_piece_boxes
+    from cam.spline.pieces import c0_pieces, make_piece_boxes
 
     ku, kv, cp = _bent_sheet()
     rng = np.random.default_rng(5)
@@ -174,8 +174,8 @@ def test_piece_boxes_bound_the_distance_to_the_piece():
 
 def test_foot_points_with_the_piece_bound_match_those_without():
     # The bound only skips runs that cannot win: every foot and distance is the same as trying all.
-    from cam.fit.param import _newton
-    from cam.spline.surface import c0_pieces, foot_in_pieces, make_piece_boxes
+    from cam.fit.foot import _newton
+    from cam.spline.pieces import c0_pieces, foot_in_pieces, make_piece_boxes
 
     ku, kv, cp = _bent_sheet()
     rng = np.random.default_rng(8)
@@ -200,7 +200,7 @@ def test_a_foot_on_the_border_of_a_skewed_sheet_is_found():
     # unconstrained foot has u < 0, so the true foot lies on the border u = 0, at v = 0.15
     # (the closest point of the line (v, v, 0) to (-0.2, 0.5)). The full Newton step leads out
     # through u = 0 from anywhere: clamped, it stops at v = 0.5 unless u is held on its bound.
-    from cam.fit.param import distance_to_surface, project_points
+    from cam.fit.foot import distance_to_surface, project_points
 
     k = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
     g = np.array([0, 1 / 3, 2 / 3, 1])
@@ -223,7 +223,7 @@ def test_distance_to_a_closed_surface_is_found_on_either_side_of_its_seam():
     from scipy.optimize import minimize
     from scipy.spatial import cKDTree
 
-    from cam.fit.param import distance_to_surface
+    from cam.fit.foot import distance_to_surface
 
     n = 16
     kv = clamped_uniform_knots(n)
@@ -259,7 +259,7 @@ def test_distance_searched_span_by_span_finds_the_nearest_point_of_a_folded_surf
     from scipy.optimize import minimize
     from scipy.spatial import cKDTree
 
-    from cam.fit.param import distance_to_surface
+    from cam.fit.foot import distance_to_surface
 
     k = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
     x = np.array([0.0, 2.0, -1.0, 1.0])

@@ -57,7 +57,7 @@ def test_a_point_past_the_end_of_a_crease_stays_off_it():
 
 def test_boundary_curve_data_leave_a_vertex_off_the_crease_where_it_is():
     # The curve passes through its vertices; data a crease away from one of them would make it swing.
-    from cam.fit.patches import _crease_samples
+    from cam.fit.borders import _crease_samples
 
     V = np.array([[0, 0, 0], [4, 0, 0], [2, 3, 0], [2, 0, 3]], dtype=np.float64)
     F = np.array([[0, 1, 2], [1, 0, 3]])
@@ -93,7 +93,7 @@ def test_crease_data_next_to_a_jump_are_not_held_exact():
     # Crease data 0.1 mm apart that leave one crease for a parallel one 0.3 mm away (a bevelled
     # edge): the two samples either side of the jump, and one more each way, are not data a curve
     # can pass through; the rest are.
-    from cam.fit.patches import _near_jumps
+    from cam.fit.borders import _near_jumps
 
     x = 0.1 * np.arange(12)
     q = np.stack([x, np.where(np.arange(12) < 6, 0.0, 0.3), np.zeros(12)], 1)
@@ -119,7 +119,7 @@ def test_a_junction_takes_the_crease_corner_a_bend_beside_it_is_nearer_to():
 
 
 def test_a_curve_slides_on_the_mesh_off_creases_and_at_jumps_of_its_crease_data():
-    from cam.fit.patches import _slide_ranges
+    from cam.fit.borders import _slide_ranges
 
     on = np.array([False, True, True])  # vertices at 0, 1, 2, 3: a smooth edge, then two sharp ones
     h = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0])

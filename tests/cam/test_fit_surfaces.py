@@ -369,7 +369,7 @@ def test_a_sample_a_neighbour_passes_through_is_not_counted_against_its_patch():
     from types import SimpleNamespace
 
     from cam.fit.boundary import Layout
-    from cam.fit.patches import _sample_errors
+    from cam.fit.report import sample_errors
 
     knots = np.array([0.0] * 4 + [1.0] * 4)
     s, t = np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), indexing="ij")
@@ -377,7 +377,7 @@ def test_a_sample_a_neighbour_passes_through_is_not_counted_against_its_patch():
             for z in (0.0, 1.0)]
     layout = Layout(curves=[], sides={}, shared=[], neighbours=[(1,), (0,)])
     P = np.array([[0.5, 0.5, 1.0], [0.25, 0.5, 0.0]])
-    err = _sample_errors(P, np.array([0, 0]), fits, layout, 0.032)
+    err = sample_errors(P, np.array([0, 0]), fits, layout, 0.032)
     np.testing.assert_allclose(err, [0.0, 0.0], atol=1e-12)
 
 
@@ -403,7 +403,7 @@ def test_inside_fixed_borders_a_surface_past_a_crease_is_drawn_back_onto_it():
     # where its closest mesh point is on the ridge itself, the mesh does not lie along a triangle's
     # normal from it, and the lattice left those points out. With mesh_edges they count, drawn
     # along the direction from the ridge, and so do the same distances.
-    from cam.fit.solve import _surface_grid
+    from cam.fit.measure import measure_lattice
     from cam.spline.knots import lattice_knots
 
     MV, MF = triangle_mesh(ridge(10.0, 0.8), np.linspace(0, 20, 81), np.linspace(0, 10, 41))
@@ -411,10 +411,10 @@ def test_inside_fixed_borders_a_surface_past_a_crease_is_drawn_back_onto_it():
     ku, kv = lattice_knots(8, 12, 4.0), lattice_knots(4, 8, 4.0)
     s, t = np.meshgrid(np.linspace(8, 12, 4), np.linspace(4, 8, 4), indexing="ij")
     cp = np.stack([s, t, np.full_like(s, 8.1)], axis=-1)  # bilinear control net: the plane z = 8.1
-    u, v, dist, near, normal, ok = _surface_grid(ku, kv, cp, mesh, 0.25, (3, 3))
+    u, v, dist, near, normal, ok = measure_lattice(ku, kv, cp, mesh, spacing=0.25, degree=(3, 3))
     on_ridge = np.abs(near[:, 0] - 10.0) < 1e-9
     assert on_ridge.any() and not ok[on_ridge].any()
-    u2, v2, dist2, near2, normal2, ok2 = _surface_grid(ku, kv, cp, mesh, 0.25, (3, 3), edges=True)
+    u2, v2, dist2, near2, normal2, ok2 = measure_lattice(ku, kv, cp, mesh, spacing=0.25, degree=(3, 3), edges=True)
     np.testing.assert_array_equal(dist2, dist)
     assert ok2.all()
     np.testing.assert_allclose(normal2[on_ridge], [[0.0, 0.0, 1.0]] * int(on_ridge.sum()), atol=1e-12)

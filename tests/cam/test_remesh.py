@@ -10,7 +10,8 @@ from cam.io import ReadError, WriteError
 from cam.io.quads import read_quad_obj, write_ply_quads_colored, write_quad_obj
 from cam.mesh.closest import closest_on_triangles, closest_points, mesh_index
 from cam.mesh.quads import face_areas, face_normals, quad_topology, vertex_fans
-from cam.remesh.check import boundary_loops, inspect_quad_mesh, repair_quad_mesh
+from cam.remesh.check import boundary_loops, inspect_quad_mesh
+from cam.remesh.repair import repair_quad_mesh
 from tests.quadshapes import quad_box, quad_grid, quad_torus
 
 

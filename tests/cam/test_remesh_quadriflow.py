@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from pydantic import ValidationError
 
 from cam import GeometryError
 from cam.io.quads import read_quad_obj
@@ -144,10 +145,15 @@ def test_bad_inputs_are_named():
         remesh_quads(np.zeros((3, 3)), np.zeros((0, 3), dtype=int))
     with pytest.raises(ValueError, match="vertices must be"):
         remesh_quads(np.full((3, 3), np.nan), np.array([[0, 1, 2]]))
-    box = _box_triangles()
-    # The group rejects these; remesh_quads still names them when a group was built without validation.
-    with pytest.raises(ValueError, match="candidates ≥ 1"):
-        remesh_quads(box.vertices, box.faces, RemeshParams.model_construct(target_faces=10, candidates=0))
+    # The group is validated once, when it is made: remesh_quads does not check its values again.
+    with pytest.raises(ValidationError, match="candidates"):
+        RemeshParams(candidates=0)
+    with pytest.raises(ValidationError, match="target_faces"):
+        RemeshParams(target_faces=0)
+    with pytest.raises(ValidationError, match="attempts"):
+        RemeshParams(attempts=0)
+    with pytest.raises(ValidationError, match="timeout_s"):
+        RemeshParams(timeout_s=0.0)
     with pytest.raises(GeometryError, match="zero extent"):
         remesh_quads(np.zeros((3, 3)), np.array([[0, 1, 2]]))
 

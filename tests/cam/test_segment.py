@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from cam import GeometryError
 from cam.io.quads import read_quad_obj, write_quad_obj
@@ -15,7 +16,6 @@ from cam.segment import segment_quads
 from cam.segment.clip import CutState, complete_cuts, patch_labels
 from cam.segment.graph import kruskal
 from cam.segment.patches import grid_of_patch
-from cam.segment.sharp import find_sharp_edges
 from cam.segment.traces import straight_continuation, trace_line
 from core.params import JobParams
 from tests.conftest import SHARED_DATA
@@ -117,14 +117,15 @@ def test_methods_agree_on_validity_and_the_baseline_cuts_more():
 
 def test_bad_inputs_are_named():
     v, f = quad_box((1, 1, 1))
-    # The group rejects an unknown method; segment_quads still names it when a group was built without validation.
-    with pytest.raises(ValueError, match="method must be one of"):
-        segment_quads(v, f, SegmentParams.model_construct(method="magic"))
+    # The group is validated once, when it is made: segment_quads and its steps do not check its values again.
+    with pytest.raises(ValidationError, match="method"):
+        SegmentParams(method="magic")
+    for bad in ({"sharp_angle_deg": 0.0}, {"min_sharp_fragment_edges": -1}, {"base_clusters": 0}, {"mu": -0.1},
+                {"gamma": -0.1}, {"sc": 0.0}, {"nc": 0.0}, {"ac": 0.0}):
+        with pytest.raises(ValidationError, match=next(iter(bad))):
+            SegmentParams(**bad)
     with pytest.raises(ValueError, match="faces must be a non-empty"):
         segment_quads(v, f[:, :3])
-    # θ = 0 is outside the group's bounds: the check it exercises is find_sharp_edges'.
-    with pytest.raises(ValueError, match="sharp_angle_deg"):
-        find_sharp_edges(quad_topology(f, len(v)), face_normals(v, f), sharp_angle_deg=0.0)
     # What the user can act on (the mesh, the parameters) is a GeometryError; array shapes stay ValueError.
     with pytest.raises(GeometryError, match="inconsistently oriented"):
         segment_quads(v, np.vstack([f[:1], f[1:, ::-1]]))

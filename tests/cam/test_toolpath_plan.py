@@ -64,7 +64,7 @@ def _folded_plane():
 
 
 def test_a_folded_surface_is_found_and_reported_not_cut():
-    from cam.spline.surface import find_folds
+    from cam.spline.folds import find_folds
 
     flat = analytic.plane(10, 10, z=-5.0)
     assert find_folds(flat) == (0.0, None)
@@ -185,12 +185,9 @@ def test_largest_clear_rectangle_of_any_size_has_the_most_clear_cells():
 
 def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
     from cam.plan.region import finishable_region
+    from cam.spline.folds import find_folds
     from cam.spline.geometry import Patch
-    from cam.spline.surface import (
-        clamped_uniform_knots,
-        find_folds,
-        make_bspline_surface,
-    )
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
     g = np.linspace(0, 10, 8)
     X, Y = np.meshgrid(g, g, indexing="ij")
@@ -215,12 +212,8 @@ def test_a_fold_narrower_than_the_fits_own_grid_is_reported_where_the_planner_fi
     # the samples of the 33 x 33 grid the fit compares its steps on. The fit's report uses the grid
     # the planner checks, so surfaces.json does not call a surface clean that the planner trims.
     from cam.plan.region import finishable_region
-    from cam.spline.surface import (
-        FOLD_CHECK_SAMPLES,
-        clamped_uniform_knots,
-        find_folds,
-        make_bspline_surface,
-    )
+    from cam.spline.folds import FOLD_CHECK_SAMPLES, find_folds
+    from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
     g = np.linspace(0, 10, 31)
     X, Y = np.meshgrid(g, np.linspace(0, 10, 5), indexing="ij")

@@ -12,13 +12,13 @@ import pytest
 
 from cam.gcode import parse_program, write_program
 from cam.gcode.setup import Setup
+from cam.gcode.sweep import Sweep
 from cam.params import ToolParams, ToolpathParams
 from cam.plan import plan_job
 from cam.spline import analytic
 from cam.spline.geometry import Patch
 from cam.spline.knots import sub_surface
 from cam.verify import measure_program
-from cam.verify.sweep import Sweep
 
 R_TOOL, TARGET = 3.0, 0.16
 

@@ -35,6 +35,23 @@ def capsule_intervals(p: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray
     """[t_in, t_out] of lines p + t·n (unit n) with capsules a → b of radius r, row by row.
 
     p, n, a, b: float64 (m, 3); returns two float64 (m,) arrays; t_in = +inf, t_out = −inf where they miss.
+
+    Parameters
+    ----------
+    p : (m, 3) float64
+        Points on the lines, mm.
+    n : (m, 3) float64
+        Line directions, unit.
+    a, b : (m, 3) float64
+        Segment ends (the axis of each capsule), mm.
+    r : float
+        Capsule radius, mm.
+
+    Returns
+    -------
+    t_in, t_out : (m,) float64
+        The interval along each line, mm from p (either may be negative); t_in = +inf, t_out = −inf
+        where the line misses its capsule.
     """
     t_in, t_out = _sphere(p, n, a, r)
     s_in, s_out = _sphere(p, n, b, r)
@@ -68,7 +85,30 @@ def capsule_intervals(p: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray
 
 
 class Sweep:
-    """The capsules of a list of straight moves (ball centres a → b, float (m, 3)), ready to be probed."""
+    """The capsules of a list of straight moves (ball centres a → b, float (m, 3)), ready to be probed.
+
+    Parameters
+    ----------
+    a, b : (m, 3) float
+        Start and end ball centres of each move, mm.
+    r : float
+        Ball radius, mm.
+    step : float
+        Spacing of the points spread along each move for the KD-tree, mm.
+
+    Attributes
+    ----------
+    a, b : (m, 3) float64
+        The moves' ball centres, mm.
+    r : float
+        Ball radius, mm.
+    step : float
+        Spacing of the spread points, mm.
+    owner : (K,) int64
+        The move of each spread point.
+    tree : cKDTree or None
+        KD-tree over the spread points; None when there is no move.
+    """
 
     def __init__(self, a: np.ndarray, b: np.ndarray, r: float, *, step: float):
         self.a, self.b, self.r, self.step = np.asarray(a, float).reshape(-1, 3), np.asarray(b, float).reshape(-1, 3), r, step
@@ -80,7 +120,20 @@ class Sweep:
         self.tree = cKDTree(spread) if len(spread) else None
 
     def pairs(self, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-        """(point index, move index) pairs whose capsule axis passes within `reach` of the point (a superset)."""
+        """(point index, move index) pairs whose capsule axis passes within `reach` of the point (a superset).
+
+        Parameters
+        ----------
+        points : (k, 3) float
+            The points, mm.
+        reach : float
+            Distance from a capsule's axis, mm.
+
+        Returns
+        -------
+        point, move : (q,) int64
+            The pairs, sorted by point, each once.
+        """
         if self.tree is None or not len(points):
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         near = cKDTree(points).sparse_distance_matrix(self.tree, reach + 0.5 * self.step, output_type="coo_matrix")
@@ -93,7 +146,26 @@ class Sweep:
     def probe(self, p: np.ndarray, n: np.ndarray, reach: float, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray]:
         """Per point p with outward unit normal n (float (k, 3)): the material left along n (first entry into
         the swept volume, +inf when none within `reach`) and the overcut (≥ 0: how deep p lies inside the
-        swept volume), both mm."""
+        swept volume), both mm.
+
+        Parameters
+        ----------
+        p : (k, 3) float
+            Surface points, mm.
+        n : (k, 3) float
+            Their outward unit normals.
+        reach : float
+            Largest material measured, mm; farther entries count as none.
+        chunk : int
+            Points handled at a time.
+
+        Returns
+        -------
+        scallop : (k,) float64
+            Material left along n, mm (0 where p lies inside a capsule), +inf when none within `reach`.
+        gouge : (k,) float64
+            Overcut, mm: r minus p's distance to the nearest capsule axis, ≥ 0.
+        """
         scallop = np.full(len(p), np.inf)
         gouge = np.zeros(len(p))
         for s in range(0, len(p), chunk):

@@ -1,0 +1,159 @@
+"""Run QuadriFlow once, in a child process with a time limit and cancellation.
+
+QuadriFlow (through ``pyQuadriFlow``) can, on rare inputs, loop forever or
+crash inside C++, so it runs in :mod:`cam.remesh.child`: the request goes in on
+stdin and the result comes back on stdout, both as npz. The parent waits in
+short steps so that it can kill the child at the deadline or when the caller
+cancels.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cam import CheckCancel
+
+__all__ = ["QuadriflowFailed", "run_quadriflow"]
+
+# How often, s, the wait on the child wakes to check the deadline and cancellation.
+_CHECK_EVERY_S = 0.25
+# The child's own alarm, s beyond the parent's limit: it ends the child should the parent die without killing it.
+_CHILD_GRACE_S = 30.0
+
+
+class QuadriflowFailed(RuntimeError):
+    """One QuadriFlow run gave no result (timeout, crash, error); the message says which.
+
+    :func:`cam.remesh.quadriflow.remesh_quads` catches it and tries the next seed; it reaches the user only
+    as part of a :class:`cam.remesh.quadriflow.RemeshFailed`.
+    """
+
+
+def run_quadriflow(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    *,
+    target_faces: int,
+    seed: int,
+    preserve_sharp: bool = True,
+    preserve_boundary: bool = False,
+    min_cost_flow: bool = False,
+    timeout_s: float = 600.0,
+    check_cancel: CheckCancel | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Run QuadriFlow once in a child process.
+
+    Parameters
+    ----------
+    vertices
+        float (n, 3), mm.
+    triangles
+        int (m, 3) vertex indices.
+    target_faces
+        Quads QuadriFlow aims for (it lands within a few tens of percent).
+    seed
+        QuadriFlow's random seed.
+    preserve_sharp, preserve_boundary, min_cost_flow
+        QuadriFlow's ``-sharp``, ``-boundary`` and ``-mcf`` switches.
+    timeout_s
+        Wall-clock limit, s; the child is killed after it.
+    check_cancel
+        Called about four times a second while the child runs; whatever it
+        raises (the caller's cancellation) kills the child and propagates.
+
+    Returns
+    -------
+    vertices : ndarray
+        float64 (n', 3), mm, holding single-precision values.
+    faces : ndarray
+        int64 (m', 4) vertex indices.
+
+    Raises
+    ------
+    QuadriflowFailed
+        On timeout, a crash, an error reported by QuadriFlow or unreadable output.
+    """
+    request = _encode_request(vertices, triangles, target_faces=target_faces, seed=seed,
+                              preserve_sharp=preserve_sharp, preserve_boundary=preserve_boundary,
+                              min_cost_flow=min_cost_flow, timeout_s=timeout_s)
+    proc = _start_child()
+    out, err = _exchange(proc, request, timeout_s=timeout_s, check_cancel=check_cancel)
+    return _decode_result(proc.returncode, out, err)
+
+
+def _encode_request(vertices: np.ndarray, triangles: np.ndarray, *, target_faces: int, seed: int,
+                    preserve_sharp: bool, preserve_boundary: bool, min_cost_flow: bool, timeout_s: float) -> bytes:
+    """The npz the child reads on stdin (see :mod:`cam.remesh.child`)."""
+    buf = io.BytesIO()
+    np.savez(buf, vertices=np.asarray(vertices, dtype=np.float64), faces=np.asarray(triangles, dtype=np.int64),
+             target_faces=int(target_faces), seed=int(seed), preserve_sharp=bool(preserve_sharp),
+             preserve_boundary=bool(preserve_boundary), min_cost_flow=bool(min_cost_flow),
+             limit_s=float(timeout_s) + _CHILD_GRACE_S)
+    return buf.getvalue()
+
+
+def _start_child() -> subprocess.Popen:
+    """``python -m cam.remesh.child`` with pipes on stdin, stdout and stderr."""
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return subprocess.Popen([sys.executable, "-m", "cam.remesh.child"], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+
+
+def _exchange(proc: subprocess.Popen, request: bytes, *, timeout_s: float,
+              check_cancel: CheckCancel | None) -> tuple[bytes, bytes]:
+    """Send the request and collect stdout and stderr; the child is dead when this returns, however it returns.
+
+    Raises
+    ------
+    QuadriflowFailed
+        When the child runs past ``timeout_s``.
+    """
+    # communicate() in a thread: polling communicate(timeout=...) cannot resume sending stdin.
+    result: dict[str, bytes] = {}
+
+    def talk() -> None:
+        result["out"], result["err"] = proc.communicate(input=request)
+
+    talker = threading.Thread(target=talk, daemon=True)
+    talker.start()
+    deadline = time.monotonic() + timeout_s
+    try:
+        while talker.is_alive():
+            # A time limit shorter than the check interval holds too.
+            talker.join(max(0.0, min(_CHECK_EVERY_S, deadline - time.monotonic())))
+            if not talker.is_alive():
+                break
+            if time.monotonic() > deadline:
+                raise QuadriflowFailed(f"timed out after {timeout_s:.0f} s")
+            if check_cancel is not None:
+                check_cancel()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        talker.join()
+    return result.get("out", b""), result.get("err", b"")
+
+
+def _decode_result(returncode: int | None, out: bytes, err: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The child's vertices and faces, or QuadriflowFailed naming its exit status and last line of stderr."""
+    message = err.decode("utf-8", errors="replace").strip().splitlines()
+    tail = message[-1] if message else ""
+    if returncode == 3:
+        raise QuadriflowFailed(f"QuadriFlow reported an error: {tail}")
+    if returncode != 0:
+        raise QuadriflowFailed(f"QuadriFlow crashed (exit status {returncode}){': ' + tail if tail else ''}")
+    try:
+        data = np.load(io.BytesIO(out))
+        return data["vertices"], data["faces"]
+    except Exception as exc:
+        raise QuadriflowFailed(f"unreadable output from the QuadriFlow process ({exc})") from exc
