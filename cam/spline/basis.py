@@ -4,13 +4,12 @@
 at many parameters at once; `surface_matrix` turns them into the sparse design
 matrix of a tensor-product surface, `evaluate_surface` evaluates a control net
 with all derivatives up to second order in one pass (foot points and curvature
-need them together), or with ``only=(du, dv)`` that single term of any orders up
-to the degrees, and `gram_matrix` / `thin_plate_matrix` give the exact
+need them together), and `gram_matrix` / `thin_plate_matrix` give the exact
 quadratic forms of the bending energy.
 
-`evaluate_surface` is the project's one B-spline surface evaluation:
-`BSplineSurface.evaluate` and `BSplineSurface.derivatives` in `cam.spline.surface`
-call it, and the fit's design matrices use the same basis functions.
+The fit evaluates the nets it solves for with these basis functions, the same as
+its design matrices'; a finished surface (`cam.spline.surface.BSplineSurface`) is
+evaluated by SciPy's compiled `NdBSpline`.
 
 Units: knots and parameters are in parameter units, control points and evaluated
 values in mm, and k-th derivatives in mm per parameter unit^k.
@@ -339,13 +338,9 @@ def evaluate_curve(knots: np.ndarray, control_points: np.ndarray, t: np.ndarray,
 
 
 def evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
-                     u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), order: int = 2,
-                     only: tuple[int, int] | None = None) -> dict[tuple[int, int], np.ndarray]:
-    """Evaluate a B-spline surface: points and partial derivatives up to total `order`, or one term.
-
-    The project's one B-spline evaluation: `BSplineSurface.evaluate` and `BSplineSurface.derivatives`
-    in `cam.spline.surface` call it. Without `only`, all terms up to total `order` (≤ 2) come in one
-    pass; with `only` = (du, dv), that one alone (any orders up to the degrees).
+                     u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), order: int = 2
+                     ) -> dict[tuple[int, int], np.ndarray]:
+    """Evaluate a B-spline control net: points and partial derivatives up to total `order`, in one pass.
 
     Parameters
     ----------
@@ -360,15 +355,13 @@ def evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: n
     degree : tuple of (int, int), optional
         The degrees (p, q) in u and v (default (3, 3)).
     order : int, optional
-        Highest total order du + dv (≤ 2, default 2); ignored when `only` is given.
-    only : tuple of (int, int), optional
-        A single term (du, dv) to evaluate, of any orders; du > p or dv > q gives zeros.
+        Highest total order du + dv (≤ 2, default 2).
 
     Returns
     -------
     terms : dict of (int, int) to (n, 3) float64
         {(du, dv): ∂^(du+dv)S/∂u^du∂v^dv} in mm per parameter unit^(du + dv) ((0, 0): the points, in
-        mm); every du + dv ≤ `order`, or the single key `only`. Orders beyond the degrees are zero.
+        mm); every du + dv ≤ `order`. Orders beyond the degrees are zero.
     """
     p, q = degree
     cp = np.asarray(control_points, dtype=np.float64)
@@ -379,18 +372,9 @@ def evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: n
     su = find_spans(ku, p, u)
     sv = find_spans(kv, q, v)
     tu, tv = _values(ku, p, u, su), _values(kv, q, v, sv)
-    if only is not None:
-        # One term: only its two factors' derivatives are made (the planner asks for one at a time).
-        a, b = only
-        if a > p or b > q:
-            return {only: np.zeros((u.size, cp.shape[-1]))}
-        bu = {a: _derivative(ku, tu, su, p, a)}
-        bv = {b: _derivative(kv, tv, sv, q, b)}
-        pairs = [only]
-    else:
-        bu = {d: _derivative(ku, tu, su, p, d) for d in range(min(order, p) + 1)}
-        bv = {d: _derivative(kv, tv, sv, q, d) for d in range(min(order, q) + 1)}
-        pairs = [(a, b) for a in range(order + 1) for b in range(order + 1 - a)]
+    bu = {d: _derivative(ku, tu, su, p, d) for d in range(min(order, p) + 1)}
+    bv = {d: _derivative(kv, tv, sv, q, d) for d in range(min(order, q) + 1)}
+    pairs = [(a, b) for a in range(order + 1) for b in range(order + 1 - a)]
     iu = su[:, None] - p + np.arange(p + 1)[None, :]
     iv = sv[:, None] - q + np.arange(q + 1)[None, :]
     n = u.size

@@ -1,20 +1,20 @@
 """Tensor-product B-spline surfaces: the record every later stage shares, and its evaluation.
 
 `make_bspline_surface` validates once; `BSplineSurface.evaluate` gives points
-and partial derivatives (for curvature and normals) through `cam.spline.basis`, the
-project's one implementation of B-spline evaluation (the fit's design matrices use it too).
+and partial derivatives (for curvature and normals) through SciPy's `NdBSpline` (compiled: the planner
+and verify evaluate surfaces millions of times, mostly a few points at a call). The fit evaluates the
+nets it is solving for with its own basis functions (`cam.spline.basis`), those of its design matrices.
 Coordinates are millimetres in the part frame; parameters run over the
 clamped knot span, normally [0, 1].
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
-from cam.spline.basis import evaluate_surface
+from scipy.interpolate import NdBSpline
 
 
 @dataclass(frozen=True, eq=False)
@@ -22,7 +22,7 @@ class BSplineSurface:
     """A non-rational tensor-product B-spline surface.
 
     Build one with `make_bspline_surface` (which validates it) or `surface_from_json`; evaluation goes
-    through `cam.spline.basis.evaluate_surface`.
+    through SciPy's `NdBSpline`, built once with the record.
 
     Attributes
     ----------
@@ -40,6 +40,7 @@ class BSplineSurface:
     knots_u: np.ndarray
     knots_v: np.ndarray
     control_points: np.ndarray
+    _spline: NdBSpline = field(repr=False, compare=False)
 
     @property
     def domain(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -69,18 +70,20 @@ class BSplineSurface:
         dict of (int, int) to (..., 3) float64
             {(du, dv): ∂^(du+dv)S/∂u^du∂v^dv}, the same values `evaluate` gives one at a time.
         """
-        u, v, shape = self._clipped(u, v)
-        out = evaluate_surface(self.knots_u, self.knots_v, self.control_points, u, v, degree=self.degree, order=order)
-        return {k: x.reshape(shape + (3,)) for k, x in out.items()}
+        uv, shape = self._clipped(u, v)
+        p, q = self.degree
+        return {(a, b): (np.asarray(self._spline(uv, nu=(a, b)), dtype=np.float64).reshape(shape + (3,))
+                         if a <= p and b <= q else np.zeros(shape + (3,)))
+                for a in range(order + 1) for b in range(order + 1 - a)}
 
-    def _clipped(self, u, v) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+    def _clipped(self, u, v) -> tuple[np.ndarray, tuple[int, ...]]:
         u = np.asarray(u, dtype=np.float64)
         v = np.asarray(v, dtype=np.float64)
         if u.shape != v.shape:
             raise ValueError(f"u and v must have one shape, got {u.shape} and {v.shape}")
         (u0, u1), (v0, v1) = self.domain
         # Clip by a hair: round-off just outside the clamped span would extrapolate.
-        return np.clip(u, u0, u1).ravel(), np.clip(v, v0, v1).ravel(), u.shape
+        return np.stack([np.clip(u, u0, u1), np.clip(v, v0, v1)], axis=-1).reshape(-1, 2), u.shape
 
     def evaluate(self, u: np.ndarray, v: np.ndarray, *, du: int = 0, dv: int = 0) -> np.ndarray:
         """Evaluate points (du = dv = 0) or partial derivatives ∂^(du+dv)S/∂u^du∂v^dv at parameters.
@@ -103,10 +106,8 @@ class BSplineSurface:
         ValueError
             When u and v differ in shape.
         """
-        uu, vv, shape = self._clipped(u, v)
-        out = evaluate_surface(self.knots_u, self.knots_v, self.control_points, uu, vv, degree=self.degree,
-                               only=(du, dv))[(du, dv)]
-        return out.reshape(shape + (3,))
+        uv, shape = self._clipped(u, v)
+        return np.asarray(self._spline(uv, nu=(du, dv)), dtype=np.float64).reshape(shape + (3,))
 
     def normals(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Unit normals S_u × S_v at parameters.
@@ -198,7 +199,8 @@ def make_bspline_surface(control_points: Any, knots_u: Any, knots_v: Any, *,
     kv = np.asarray(knots_v, dtype=np.float64)
     _check_knots("knots_u", ku, p, cp.shape[0])
     _check_knots("knots_v", kv, q, cp.shape[1])
-    return BSplineSurface(degree=(p, q), knots_u=ku, knots_v=kv, control_points=cp)
+    spline = NdBSpline((ku, kv), cp, (p, q), extrapolate=False)
+    return BSplineSurface(degree=(p, q), knots_u=ku, knots_v=kv, control_points=cp, _spline=spline)
 
 
 def clamped_uniform_knots(count: int, degree: int = 3) -> np.ndarray:
