@@ -6,6 +6,14 @@ centroid lies farther than the best distance found plus the largest
 centroid-to-corner radius is excluded), so the answer is exact, not a
 nearest-vertex approximation. Within a set, a triangle is tested only when its
 centroid lies within the best distance so far plus its own radius.
+
+That bound is only as tight as the largest triangle: on a CAD mesh, where a few
+triangles span whole faces beside many small ones, every query would take in
+most of the mesh. Triangles with a radius over a fiftieth of the mesh's diagonal
+are therefore indexed as pieces (halved across their longest edge until small
+enough); a piece's closest point is its triangle's, reported with the
+triangle's index and barycentrics, so the answer is the same. A point equally
+near two triangles gets the one with the nearer centroid, however they were cut.
 """
 
 from __future__ import annotations
@@ -16,6 +24,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 __all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles", "triangle_normals"]
+
+# Distances this close are one distance (round-off of the same point reached through different pieces).
+TIE_MM = 1e-9
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,19 +42,57 @@ class MeshIndex:
     vertex_tree : scipy.spatial.cKDTree
         The vertices that some triangle uses.
     centroid_tree : scipy.spatial.cKDTree
-        The triangles' centroids, indexed like `faces`.
+        The centroids of the indexed pieces (each triangle, or the pieces a large one is cut into).
+    centroids : (m, 3) float64
+        Each triangle's centroid, mm (it breaks ties between equally near triangles).
     radius : float
-        Largest centroid-to-corner distance, mm.
-    radii : (m,) float64
-        Each triangle's centroid-to-corner distance, mm.
+        Largest centroid-to-corner distance of a piece, mm.
+    radii : (p,) float64
+        Each piece's centroid-to-corner distance, mm.
+    piece_face : (p,) int64
+        The triangle each piece is part of.
+    piece_corners : (p, 3, 3) float64
+        Each piece's corners, mm.
+    piece_bary : (p, 3, 3) float64
+        Each piece's corners as barycentric weights of its triangle's corners (rows: corners).
     """
 
     vertices: np.ndarray  # float64 (n, 3), mm
     faces: np.ndarray  # int64 (m, 3)
     vertex_tree: cKDTree
     centroid_tree: cKDTree
-    radius: float  # largest centroid-to-corner distance, mm
-    radii: np.ndarray  # float64 (m,): each triangle's centroid-to-corner distance, mm
+    centroids: np.ndarray  # float64 (m, 3): each triangle's centroid, mm
+    radius: float  # largest centroid-to-corner distance of a piece, mm
+    radii: np.ndarray  # float64 (p,)
+    piece_face: np.ndarray  # int64 (p,)
+    piece_corners: np.ndarray  # float64 (p, 3, 3)
+    piece_bary: np.ndarray  # float64 (p, 3, 3)
+
+
+def _radii(corners: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(corners - corners.mean(axis=1)[:, None, :], axis=2).max(axis=1)
+
+
+def _cut_large(corners: np.ndarray, bary: np.ndarray, face: np.ndarray, limit: float):
+    """Halve every piece with a radius over `limit` across its longest edge, until none is left."""
+    while True:
+        big = _radii(corners) > limit
+        if not big.any():
+            return corners, bary, face
+        c, b = corners[big], bary[big]
+        k = np.argmax(np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2), axis=1)  # edge k: corner k to k + 1
+        rows = np.arange(len(c))
+        i0, i1, i2 = k, (k + 1) % 3, (k + 2) % 3
+        mid_c = 0.5 * (c[rows, i0] + c[rows, i1])
+        mid_b = 0.5 * (b[rows, i0] + b[rows, i1])
+        # (A, M, C) and (M, B, C): the corner order, and so the normal, is kept.
+        first_c = np.stack([c[rows, i0], mid_c, c[rows, i2]], axis=1)
+        second_c = np.stack([mid_c, c[rows, i1], c[rows, i2]], axis=1)
+        first_b = np.stack([b[rows, i0], mid_b, b[rows, i2]], axis=1)
+        second_b = np.stack([mid_b, b[rows, i1], b[rows, i2]], axis=1)
+        corners = np.concatenate([corners[~big], first_c, second_c])
+        bary = np.concatenate([bary[~big], first_b, second_b])
+        face = np.concatenate([face[~big], face[big], face[big]])
 
 
 def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
@@ -75,10 +124,16 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
     if F.min() < 0 or F.max() >= len(V):
         raise ValueError(f"triangle indices must lie in 0..{len(V) - 1}, got {F.min()}..{F.max()}")
     used = np.unique(F)
-    centroids = V[F].mean(axis=1)
-    radii = np.linalg.norm(V[F] - centroids[:, None, :], axis=2).max(axis=1)
-    return MeshIndex(vertices=V, faces=F, vertex_tree=cKDTree(V[used]), centroid_tree=cKDTree(centroids),
-                     radius=float(radii.max()), radii=radii)
+    corners = V[F]
+    # A fiftieth of the diagonal: a scan's or remesher's triangles are smaller and stay as they are; the
+    # whole-face triangles and slivers of a CAD mesh are cut (finer pieces only add pieces to search).
+    limit = float(np.linalg.norm(np.ptp(V[used], axis=0))) / 50.0
+    corners, bary, face = _cut_large(corners, np.broadcast_to(np.eye(3), (len(F), 3, 3)).copy(),
+                                     np.arange(len(F), dtype=np.int64), max(limit, 1e-12))
+    radii = _radii(corners)
+    return MeshIndex(vertices=V, faces=F, vertex_tree=cKDTree(V[used]), centroid_tree=cKDTree(corners.mean(axis=1)),
+                     centroids=V[F].mean(axis=1), radius=float(radii.max()), radii=radii, piece_face=face,
+                     piece_corners=corners, piece_bary=bary)
 
 
 def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
@@ -217,7 +272,7 @@ def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
 
 
 def _closest_chunk(index: MeshIndex, P: np.ndarray):
-    n, m = len(P), len(index.faces)
+    n, m = len(P), len(index.piece_face)
     # The nearest vertex lies on the mesh, so its distance bounds the answer from above from the start.
     best = index.vertex_tree.query(P)[0]
     result = (np.empty((n, 3)), np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros((n, 3)))
@@ -248,15 +303,26 @@ def _take(index: MeshIndex, P: np.ndarray, result: tuple, best: np.ndarray, todo
     """Test the candidate triangles cand[rows, cols] of the points todo[rows]; keep each point's nearest."""
     if not rows.size:
         return
-    tri = index.vertices[index.faces[cand[rows, cols]]]
+    piece = cand[rows, cols]
+    tri = index.piece_corners[piece]
     pp = P[todo[rows]]
     q, bary = closest_on_triangles(pp, tri[:, 0], tri[:, 1], tri[:, 2])
+    bary = np.einsum("ij,ijk->ik", bary, index.piece_bary[piece])  # the piece's weights → its triangle's
     d = np.linalg.norm(q - pp, axis=1)
-    order = np.lexsort((d, rows))  # by point, nearest first
+    face = index.piece_face[piece]
+    # Equally near triangles (a point over an edge) go to the one with the nearest centroid, however the
+    # mesh was cut into pieces: callers that assign points to faces see the answer of the whole triangles.
+    centre = np.linalg.norm(index.centroids[face] - pp, axis=1)
+    nearest = np.full(rows.max() + 1, np.inf)
+    np.minimum.at(nearest, rows, d)
+    tied = d <= nearest[rows] + TIE_MM
+    order = np.lexsort((centre, ~tied, rows))  # by point, the nearest centroid among the nearest first
     first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
     at = todo[rows[first]]
-    better = d[first] < result[1][at]
+    held, was = result[1][at], result[2][at]
+    held_centre = np.linalg.norm(index.centroids[was] - pp[first], axis=1)
+    better = (d[first] < held - TIE_MM) | ((d[first] <= held + TIE_MM) & (centre[first] < held_centre))
     at, first = at[better], first[better]
     result[0][at], result[1][at] = q[first], d[first]
-    result[2][at], result[3][at] = cand[rows[first], cols[first]], bary[first]
+    result[2][at], result[3][at] = face[first], bary[first]
     best[at] = np.minimum(best[at], d[first])
