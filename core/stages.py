@@ -14,6 +14,11 @@ from typing import Any
 
 from core.params import JobParams
 
+#: Program files plan may write: one per setup (at most 4) and per ball (the rest ball's end in -rest); the
+#: names `cam.plan.program_name` gives (core loads no geometry code, so they are listed here; a test compares).
+PROGRAMS = tuple(("program" if k == 1 else f"program-setup{k}") + suffix + ".nc"
+                 for suffix in ("", "-rest") for k in range(1, 5))
+
 #: The pipeline of DESIGN.md, in order.
 DESIGN_ORDER = ("ingest", "reconstruct", "denoise", "remesh", "segment", "fit", "plan", "verify")
 
@@ -88,17 +93,16 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="plan",
-        version="1",
-        inputs=("surfaces.json", "setup.json", "mesh.ply"),
-        # Segment gives one setup; the planner adds at most the opposite one.
-        outputs=("toolpath.json", "toolpath.csv", "setup.json", "program.nc", "program-setup2.nc"),
+        version="2",
+        inputs=("mesh.ply", "surfaces.json", "setup.json"),
+        outputs=("toolpath.json", "toolpath.csv", "setup.json") + PROGRAMS,
         param_groups=("tool", "toolpath"),
         time_limit_s=1800.0,
     ),
     StageSpec(
         name="verify",
-        version="1",
-        inputs=("program.nc", "program-setup2.nc", "setup.json", "surfaces.json", "mesh.ply"),
+        version="2",
+        inputs=("mesh.ply", "setup.json") + PROGRAMS,
         outputs=("verify.json", "scallop.ply"),
         param_groups=("tool", "toolpath"),
         time_limit_s=1800.0,

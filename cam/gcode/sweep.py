@@ -173,6 +173,10 @@ class Sweep:
             i, j = self.pairs(p[s:e], self.r + reach)
             if not len(i):
                 continue
+            # A capsule whose axis is farther than r + reach from the point cannot be entered within reach.
+            dist = _segment_distance(p[s:e][i], self.a[j], self.b[j])
+            near = dist <= self.r + reach
+            i, j, dist = i[near], j[near], dist[near]
             t_in, t_out = capsule_intervals(p[s:e][i], n[s:e][i], self.a[j], self.b[j], self.r)
             hit = (t_in <= t_out) & (t_out >= 0)
             sc = np.full(e - s, np.inf)
@@ -182,6 +186,6 @@ class Sweep:
             # the axis. The normal line's own depth (-t_in) overstates it wherever the line meets the
             # capsule obliquely, e.g. a ball cutting the far face of a sharp edge next to the point.
             g = np.zeros(e - s)
-            np.maximum.at(g, i, np.maximum(self.r - _segment_distance(p[s:e][i], self.a[j], self.b[j]), 0.0))
+            np.maximum.at(g, i, np.maximum(self.r - dist, 0.0))
             gouge[s:e] = g
         return scallop, gouge

@@ -125,7 +125,11 @@ class FitParams(_Group):
 class ToolParams(_Group):
     shape: Literal["ball"] = Field("ball", description="Cutter shape: ball end mill.")
     radius_mm: float = Field(3.0, gt=0, le=50, description="Ball radius.")
+    rest_radius_mm: float | None = Field(None, gt=0, le=50, description="Radius of a smaller ball that finishes "
+                                         "what the main one leaves over the target, in a program of its own per "
+                                         "setup. None: no rest program.")
     tool_number: int = Field(1, ge=1, le=99999, description="T word of the tool change.")
+    rest_tool_number: int = Field(2, ge=1, le=99999, description="T word of the rest ball's tool change.")
     spindle_rpm: float = Field(12000.0, gt=0, le=200000, description="Spindle speed.")
     feed_mm_min: float = Field(1200.0, gt=0, le=100000, description="Cutting feed.")
     plunge_mm_min: float = Field(300.0, gt=0, le=100000, description="Plunge feed.")
@@ -142,4 +146,15 @@ class ToolpathParams(_Group):
     retract_mm: float = Field(1.0, gt=0, le=100, description="Lift between passes of one patch.")
     min_reach_fraction: float = Field(0.5, ge=0, le=1, description="A patch whose reachable share is below this "
                                       "is reported unmachined for the setup.")
-    verify_samples_per_interval: int = Field(12, ge=10, le=100, description="verify: samples per pass interval.")
+    verify_samples_per_interval: int = Field(12, ge=4, le=100, description="verify: samples of the part per "
+                                             "flat pass width (the finer, the nearer it finds the largest scallop).")
+    max_setups: int = Field(2, ge=1, le=4, description="Setups (tool axes) at most; they are chosen to reach the "
+                            "most of the part.")
+    patch_passes: bool = Field(True, description="Contour-parallel passes on the fitted patches that hold their "
+                               "tolerance before the whole-part finish (false: the mesh strategies alone).")
+    min_finished_share: float = Field(0.98, ge=0, le=1, description="verify passes only when at least this share "
+                                      "of what the ball can reach is left within the scallop height.")
+    gouge_tolerance_mm: float = Field(0.01, ge=0, le=1, description="verify fails a program that cuts deeper "
+                                      "than this into the part (mesh.ply).")
+    rapid_margin_mm: float = Field(0.5, ge=0, le=100, description="Rapid moves keep at least this distance from "
+                                   "the part; verify checks it.")

@@ -115,7 +115,8 @@ def reach(index: SurfaceIndex, patch: Patch, r: float, *, samples: int = 10) -> 
 
 def assign_setups(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarray, setups: list[Setup], *,
                   r: float, min_reach: float = 0.5, spacing_mm: float | None = None,
-                  skip: set[int] = frozenset(), obstacles: list[BSplineSurface] | None = None) -> Assignment:
+                  skip: set[int] = frozenset(), obstacles: list[BSplineSurface] | None = None,
+                  add_opposite: bool = True) -> Assignment:
     """Give every patch the setup that reaches most of it; add the opposite setup when that helps.
 
     Patches in `skip` (already reported by the caller) still count as part of the part but get no setup.
@@ -137,6 +138,8 @@ def assign_setups(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndar
         Ball radius, mm.
     min_reach : float
         Reachable fraction (0..1) below which the opposite setup is tried.
+    add_opposite : bool
+        Whether the opposite setup may be added (False: the setups given are all there are).
     spacing_mm : float or None
         Sample spacing of the part's `SurfaceIndex`, mm; default max(r / 4, 0.25).
     skip : set of int
@@ -171,7 +174,7 @@ def assign_setups(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndar
         reaches(setup, lambda i: True)
     weak = [i for i in ids if i not in skip and max(f for f, _ in scores[i]) < min_reach]
     extra = None
-    if weak:
+    if weak and add_opposite:
         extra = opposite_setup(setups[0], solid, new_id=max(s.id for s in setups) + 1)
         reaches(extra, lambda i: i in weak)
     all_setups = list(setups) + ([extra] if extra is not None else [])

@@ -1,9 +1,20 @@
-"""The planner: every patch of every setup, and the linked move list per setup (see `plan_job`).
+"""The `plan` stage without its files: programs that finish the part, setup by setup (`plan_job`).
 
-`plan_job` is the whole `plan` stage without its files: part-frame surfaces and setups in, per setup
-the passes (tool tips, machine frame), the certified scallop bound of every patch (`cam.plan.patch`)
-and the linked move list out; what it does not finish is listed with the reason (`unmachined`, and
-`partial` for patches finished on parameter rectangles only).
+1. Samples of the part (`mesh.ply`) and the setups that reach most of them (`setups.choose_setups`,
+   segment's setup considered first).
+2. The paper's contour-parallel passes on the fitted patches that hold their fit tolerance
+   (`patch_job.plan_patches`), every ball centre lifted onto the mesh's drop-cutter height so that no
+   pass cuts the part where a surface lies below it.
+3. Per setup, whole-part finishing on the mesh (`finish.finish_setup`: raster, waterlines, clean-up) of
+   every sample that setup reaches and no earlier pass left within the target.
+4. With a rest ball (`tool.rest_radius_mm`), the same for what the main ball leaves over the target,
+   in a program of its own per setup.
+5. Linking: passes in greedy order, feeding across where that is short and clear, otherwise up to the
+   rapid margin, across at the clearance height and down again.
+
+The planner measures what its passes leave on every sample (the ball's swept volume met by the
+sample's normal line); the bound a program header states is the largest of those on the samples it
+finishes. `verify` measures the G-code again, independently, on its own samples.
 """
 
 from __future__ import annotations
@@ -12,294 +23,304 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam import CheckCancel, GeometryError, Progress
+from cam import CheckCancel, GeometryError, Progress, progress_between
 from cam.gcode.moves import MoveList
 from cam.gcode.setup import Setup
+from cam.mesh.dropcutter import drop_ball, drop_index
+from cam.mesh.samples import SurfaceSamples, sample_surface
 from cam.params import ToolParams, ToolpathParams
-from cam.plan.access import Assignment, assign_setups
-from cam.plan.errors import NotPlannable, TooConcave, Unreachable
-from cam.plan.gouge import GOUGE_TOL_MM, SurfaceIndex, build_index, move_clearance
-from cam.plan.link import link_passes, order_patches
-from cam.plan.patch import ROUNDING_MM, PatchPlan, plan_patch, restrict_patch
-from cam.plan.region import Region, finishable_region
-from cam.spline.geometry import Patch, area_share, machine_patches
-from cam.spline.knots import sub_surface
+from cam.plan.coverage import left_on_samples
+from cam.plan.finish import finish_setup
+from cam.plan.lines import GOUGE_TOL_MM, follow_part
+from cam.plan.link import link_on_part, order_passes
+from cam.plan.part import SetupPart, setup_part
+from cam.plan.patch import ROUNDING_MM
+from cam.plan.patch_job import PatchesPlan, plan_patches, program_name
+from cam.plan.setups import choose_setups
 from cam.spline.surface import BSplineSurface
 
-__all__ = ["Plan", "SetupPlan", "plan_job", "program_name"]
+__all__ = ["JobPlan", "ProgramPlan", "SurfacesIn", "plan_job"]
 
-BESIDE_SHARE = 0.1  # a strip beside a patch's planned rectangle is planned too when it holds this share of it
+
+@dataclass(frozen=True)
+class SurfacesIn:
+    """The fitted patches the patch passes may use: ids, surfaces (part frame), outward signs, and which
+    hold the fit tolerance (only those get patch passes)."""
+
+    ids: list[int]
+    surfaces: list[BSplineSurface]
+    signs: np.ndarray
+    good: np.ndarray
 
 
 @dataclass
-class SetupPlan:
-    """The plan of one setup: its patches' passes and the linked move list of its program.
+class ProgramPlan:
+    """One program: one setup, one ball.
 
     Attributes
     ----------
     setup : Setup
-        The setup (how the part sits on the machine).
-    patches : list of PatchPlan
-        The planned patches (and strips beside them), in cutting order.
+    name : str
+        Its file name (`program_name`).
+    role : str
+        "main" or "rest".
+    tool_radius_mm : float
+    passes : list of (n_i, 3) float64
+        Tool tips, mm, machine frame, in cutting order.
+    strategy : list of str
+        Per pass: "patch <id>", "raster", "waterline" or "cleanup".
     moves : MoveList
-        The linked moves of the program: tool tips, mm, machine frame.
-    program : str
-        The program's file name (`program_name`).
+    bound_mm : float
+        The largest material the planner measured its passes leave on the samples it counts finished.
+    stats : dict
     """
 
     setup: Setup
-    patches: list[PatchPlan]
+    name: str
+    role: str
+    tool_radius_mm: float
+    passes: list[np.ndarray]
+    strategy: list[str]
     moves: MoveList
-    program: str
+    bound_mm: float
+    stats: dict = field(default_factory=dict)
 
 
 @dataclass
-class Plan:
-    """What `plan_job` returns: the plan of every setup, and what is not finished, with the reason.
+class JobPlan:
+    """Every program of the job and what the planner measured they finish.
 
     Attributes
     ----------
-    setups : list of SetupPlan
-        One per setup in use, in program order.
-    unmachined : list of dict
-        ``{"patch": id, "reason": str}`` for every patch not finished at all.
-    tool_radius_mm : float
-        Ball radius, mm.
-    scallop_height_mm : float
-        The target scallop height h, mm.
-    scallop_share_mm : float
-        The share the rings are planned with, (1 − chord_fraction)·h − `ROUNDING_MM`, mm.
-    chord_tolerance_mm : float
-        The share of the straight moves, chord_fraction·h, mm.
-    strategy : str
-        'adaptive' or 'paper'.
-    stats : dict
-        Further numbers; `plan_job` leaves it empty.
-    partial : list of dict
-        ``{"patch": id, "region": [u0, u1, v0, v1], "kept": share of the area, "reason": str}`` for
-        every patch finished on parameter rectangles only (one entry per rectangle).
+    programs : list of ProgramPlan
+    setups : list of Setup
+    patches : PatchesPlan or None
+        The patch passes' own plan (their certificates, what they left out).
+    coverage : dict
+        The planner's measurement on its samples: shares of the part, by tool and reason.
+    tool_radius_mm, rest_radius_mm, scallop_height_mm, scallop_share_mm, chord_tolerance_mm : float
     """
 
-    setups: list[SetupPlan]
-    unmachined: list[dict]
+    programs: list[ProgramPlan]
+    setups: list[Setup]
+    patches: PatchesPlan | None
+    coverage: dict
     tool_radius_mm: float
+    rest_radius_mm: float | None
     scallop_height_mm: float
     scallop_share_mm: float
     chord_tolerance_mm: float
-    strategy: str
-    stats: dict = field(default_factory=dict)
-    partial: list[dict] = field(default_factory=list)
-
-    @property
-    def certified_scallop_mm(self) -> float:
-        """The largest certified scallop bound of any planned patch, mm; 0.0 when none is planned."""
-        vals = [p.certified_scallop_mm for s in self.setups for p in s.patches]
-        return max(vals) if vals else 0.0
-
-
-def _claim(surface, plan: PatchPlan, trimmed: Region | None) -> dict | None:
-    """What a patch planned on a sub-rectangle claims: the rectangle, its share of the patch's area and
-    why the rest is left (None when the whole patch is planned). Verify holds the program to this claim."""
-    planned = plan.region
-    (u0, u1), (v0, v1) = surface.domain
-    full = (u0, u1, v0, v1)
-    scale = max(u1 - u0, v1 - v0)
-    if np.allclose(planned, full, rtol=0, atol=1e-12 * scale):
-        return None
-    reasons = [trimmed.reason] if trimmed is not None else []
-    inside = trimmed.box if trimmed is not None else full
-    if not np.allclose(planned, inside, rtol=0, atol=1e-12 * scale):
-        reasons += list(plan.hollows)
-        if plan.touched or not plan.hollows:
-            reasons.append("beyond it the ball would touch a neighbouring surface or its shank the part")
-    return {"region": [float(x) for x in planned], "kept": area_share(surface, planned), "reason": "; ".join(reasons)}
-
-
-def _plan_beside(patch: Patch, region, whole_surface, index: SurfaceIndex, tool: ToolParams,
-                 toolpath: ToolpathParams, *, trimmed: Region | None, min_share: float = BESIDE_SHARE,
-                 **options) -> tuple[list[PatchPlan], list[dict]]:
-    """Plans and claims of the four strips of `patch` beside its planned rectangle `region` (left and right
-    of it over the whole height, below and above it over its width) that hold at least `min_share` of the
-    patch's area, each planned like a patch of its own and kept when its claim holds that share too.
-
-    A band the ball cannot reach across the middle of a patch (a face turned away from the tool, a rib
-    standing on it) leaves usable pieces on both sides, and one rectangle takes only the larger. A strip
-    the planner cannot finish is left without a word of its own: the first claim's reason covers it.
-    """
-    (u0, u1), (v0, v1) = patch.domain
-    a, b, c, d = region
-    plans, claims = [], []
-    for strip in ((u0, a, v0, v1), (b, u1, v0, v1), (a, b, v0, c), (a, b, d, v1)):
-        if strip[0] >= strip[1] or strip[2] >= strip[3] or area_share(whole_surface, strip) < min_share:
-            continue
-        try:
-            pp = plan_patch(restrict_patch(patch, strip), index, tool, toolpath, **options)
-        except (TooConcave, Unreachable, NotPlannable):
-            continue
-        claim = _claim(whole_surface, pp, trimmed)
-        if pp.passes and claim is not None and claim["kept"] >= min_share:
-            plans.append(pp)
-            claims.append({"patch": patch.id, **claim})
-    return plans, claims
-
-
-def program_name(position: int) -> str:
-    """`program.nc` for the first setup, `program-setup2.nc`, ... after it (DESIGN).
-
-    Parameters
-    ----------
-    position : int
-        The setup's place in the plan, 0 for the first.
-
-    Returns
-    -------
-    str
-        The program's file name.
-    """
-    return "program.nc" if position == 0 else f"program-setup{position + 1}.nc"
 
 
 @dataclass
-class _Finishable:
-    """The surfaces to finish (part frame; a patch with a fold or a tight hollow cut to the rectangle
-    without it), the patches so trimmed, and those left out with the reason."""
+class _Passes:
+    """Ball-centre passes of one setup and ball, with their strategy names."""
 
-    surfaces: list[BSplineSurface]
-    trimmed: dict[int, Region]
-    unmachined: list[dict]
+    centres: list[np.ndarray] = field(default_factory=list)
+    strategy: list[str] = field(default_factory=list)
 
 
-def _finishable(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarray, *, r: float,
-                min_reach: float) -> _Finishable:
-    out = _Finishable(list(surfaces), {}, [])
-    for k, (i, s, g) in enumerate(zip(ids, surfaces, signs)):
-        # Folds and hollows tighter than the ball are left out (the sides move in past them) or, when
-        # they are inside, the patch is reported: never cut, never given a bound it cannot keep.
-        region = finishable_region(Patch(int(i), s, float(g)), r)
-        if region.box is None or region.kept < min_reach:
-            out.unmachined.append({"patch": int(i), "reason": region.reason if region.box is None else
-                                   f"only {region.kept:.0%} of it can be finished: {region.reason}"})
-            continue
-        if region.reason:
-            out.surfaces[k] = sub_surface(s, region.box)
-            out.trimmed[int(i)] = region
-    return out
+def _machine(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    return samples.points @ setup.rotation.T + setup.translation, samples.normals @ setup.rotation.T
 
 
-def _plan_setup_patches(setup: Setup, mine: list[int], patches: list[Patch], whole: dict[int, BSplineSurface],
-                        index: SurfaceIndex, tool: ToolParams, toolpath: ToolpathParams, *,
-                        finish: _Finishable, assignment: Assignment, unmachined: list[dict], partial: list[dict],
-                        on_patch, check_cancel: CheckCancel) -> list[PatchPlan]:
-    """The plans of one setup's patches (`mine`), with the strips beside a rectangle that leaves some;
-    what cannot be planned goes to `unmachined`, each rectangle that is not a whole patch to `partial`."""
-    plans = []
-    for p in patches:
-        if p.id not in mine:
-            continue
-        on_patch(p.id)
-        trimmed = finish.trimmed.get(p.id)
-        share = assignment.reach.get(p.id, 1.0) * (trimmed.kept if trimmed is not None else 1.0)
-        options = {"reach_fraction": share, "check_cancel": check_cancel, "to_part": setup.to_part}
-        try:
-            plans.append(plan_patch(p, index, tool, toolpath, **options))
-        except (TooConcave, Unreachable, NotPlannable) as exc:
-            unmachined.append({"patch": p.id, "reason": str(exc)})
-            continue
-        claim = _claim(whole[p.id], plans[-1], trimmed)
-        if claim is not None:
-            partial.append({"patch": p.id, **claim})
-            more, claims = _plan_beside(p, plans[-1].region, whole[p.id], index, tool, toolpath, trimmed=trimmed,
-                                        **options)
-            plans += more
-            partial += claims
-    return [pp for pp in plans if pp.passes]
+def _patch_passes(surfaces: SurfacesIn | None, setups: list[Setup], parts: list[SetupPart], tool: ToolParams,
+                  toolpath: ToolpathParams, *, chord_mm: float, check_cancel) -> tuple[PatchesPlan | None, list]:
+    """The patch passes per setup, lifted onto the mesh's drop-cutter height and refined against it."""
+    out = [_Passes() for _ in setups]
+    if surfaces is None or not toolpath.patch_passes or not surfaces.good.any():
+        return None, out
+    keep = np.flatnonzero(surfaces.good)
+    plan = plan_patches([surfaces.ids[k] for k in keep], [surfaces.surfaces[k] for k in keep], setups, tool,
+                        toolpath, signs=surfaces.signs[keep], add_setups=False, check_cancel=check_cancel)
+    by_id = {s.id: k for k, s in enumerate(setups)}
+    for sp in plan.setups:
+        k = by_id[sp.setup.id]
+        for pp in sp.patches:
+            for centres in pp.centres:
+                lifted = centres.copy()
+                lifted[:, 2] = np.maximum(lifted[:, 2], parts[k].drop(lifted[:, :2]))
+                lifted, _ = follow_part(parts[k], lifted, chord_mm=chord_mm)
+                out[k].centres.append(lifted)
+                out[k].strategy.append(f"patch {pp.patch}")
+    return plan, out
 
 
-def _link_setup(plans: list[PatchPlan], solid: list[Patch], index: SurfaceIndex, *, r: float,
-                toolpath: ToolpathParams) -> tuple[list[PatchPlan], MoveList]:
-    """The patches in cutting order (nearest entry next) and the move list that links their passes."""
-    top = max(float(np.max(q.surface.control_points[..., 2])) for q in solid)
-    entries = np.array([pp.passes[0][0] for pp in plans]).reshape(-1, 3)
-    exits = np.array([pp.passes[-1][-1] for pp in plans]).reshape(-1, 3)
-    plans = [plans[i] for i in order_patches(entries, exits)]
+def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach: list[np.ndarray],
+                         passes: list[_Passes], left: np.ndarray, *, h: float, scallop_mm: float, chord_mm: float,
+                         progress, check_cancel) -> list[dict]:
+    """Whole-part finishing, setup by setup, of what each reaches and no earlier pass finished; updates
+    `passes` and `left` in place and returns each setup's stats."""
+    stats = []
+    for k, part in enumerate(parts):
+        progress(k / max(len(parts), 1), f"setup {k + 1}: finishing on the mesh")
+        points, normals = _machine(samples, part.setup)
+        if passes[k].centres:
+            left[:] = np.minimum(left, left_on_samples(passes[k].centres, points, normals,
+                                                       tool_radius_mm=part.radius_mm, reach_mm=h))
+        target = reach[k] & ~(left <= h)
+        done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
+                            target_mm=h, check_cancel=check_cancel)
+        passes[k].centres += done.passes
+        passes[k].strategy += done.strategy
+        left[target] = np.minimum(left[target], done.left)
+        stats.append({"targets": int(target.sum()), **done.stats,
+                      "strategy_bound_mm": {s: round(v, 6) for s, v in done.certified_mm.items()}})
+    return stats
 
-    def stay_down(a, b):
-        if np.linalg.norm(b - a) > 2 * r:
+
+#: Spacing of the points a link's rapid is checked at, mm.
+LINK_STEP_MM = 0.5
+
+
+def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: ToolpathParams, *,
+             top_z: float, bound_mm: float, stats: dict) -> ProgramPlan:
+    """Order and link one setup's passes for one ball into a program."""
+    r = part.radius_mm
+    tips = [c - np.array([0.0, 0.0, r]) for c in passes.centres if len(c)]
+    names = [s for c, s in zip(passes.centres, passes.strategy) if len(c)]
+    order = order_passes(tips)
+    ordered = [tips[k][::-1] if turned else tips[k] for k, turned in order]
+    # The ball grown by the rapid margin, lowered where a rapid ends: its tip height keeps that margin.
+    grown = drop_index(part.mesh.vertices, part.mesh.faces, radius_mm=r + toolpath.rapid_margin_mm, closed=True)
+
+    def safe_z(xy: np.ndarray) -> float:
+        z = drop_ball(grown, np.asarray(xy, dtype=np.float64)[None])[0]
+        return float(max(z, part.floor_z + r + toolpath.rapid_margin_mm) - r)
+
+    # A rapid across is checked at points LINK_STEP_MM apart, by a ball grown by half that more: between
+    # two of them the real ball keeps the whole margin.
+    link = drop_index(part.mesh.vertices, part.mesh.faces,
+                      radius_mm=r + toolpath.rapid_margin_mm + 0.5 * LINK_STEP_MM, closed=True)
+
+    def travel_z(a: np.ndarray, b: np.ndarray) -> float:
+        n = max(int(np.ceil(float(np.linalg.norm(b - a)) / LINK_STEP_MM)), 1)
+        xy = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+        return float(max(drop_ball(link, xy).max(), part.floor_z + r + toolpath.rapid_margin_mm) - r)
+
+    def stay_down(a: np.ndarray, b: np.ndarray) -> bool:
+        d = float(np.linalg.norm(b[:2] - a[:2]))
+        if d > 2.5 * r or abs(b[2] - a[2]) > r:
             return False
-        z = np.array([0.0, 0.0, r])
-        worst, _ = move_clearance(index, (a + z)[None], (b + z)[None], r, step_mm=max(r / 8, 0.05))
-        return bool(worst[0] >= -GOUGE_TOL_MM)
+        t = np.linspace(0.0, 1.0, max(int(np.ceil(d / (0.1 * r))), 1) + 1)
+        line = a + t[:, None] * (b - a) + np.array([0.0, 0.0, r])
+        return bool(np.all(part.drop(line[:, :2]) <= line[:, 2] + GOUGE_TOL_MM))
 
-    moves = link_passes([(pp.patch, pp.passes) for pp in plans], clearance_z=top + toolpath.clearance_mm,
-                        retract_mm=toolpath.retract_mm, stay_down=stay_down)
-    return plans, moves
+    moves = link_on_part(ordered, clearance_z=top_z + toolpath.clearance_mm, retract_mm=toolpath.retract_mm,
+                         safe_z=safe_z, stay_down=stay_down, travel_z=travel_z)
+    strategy = [names[k] for k, _ in order]
+    return ProgramPlan(setup=part.setup, name=name, role=role, tool_radius_mm=r, passes=ordered,
+                       strategy=strategy, moves=moves, bound_mm=bound_mm, stats=stats)
 
 
-def plan_job(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup], tool: ToolParams,
-             toolpath: ToolpathParams, *, signs: np.ndarray | None = None, progress: Progress | None = None,
-             check_cancel: CheckCancel | None = None) -> Plan:
-    """Plan every patch (part-frame surfaces with ids) over the setups; see the module docstring.
+def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath: ToolpathParams, *,
+             surfaces: SurfacesIn | None = None, given_setups: list[Setup] = (), progress: Progress | None = None,
+             check_cancel: CheckCancel | None = None) -> JobPlan:
+    """Programs that finish every surface of the part the ball reaches, within the scallop height.
 
     Parameters
     ----------
-    ids, surfaces : list of int, list of BSplineSurface
-        Patch ids and their B-spline surfaces (part frame, mm), one each.
-    setups : list of Setup
-        The setups `segment` chose; the planner may add the opposite one.
+    vertices, faces : (n, 3) float, (m, 3) int
+        The part (`mesh.ply`): closed, outward, mm, part frame.
     tool, toolpath : ToolParams, ToolpathParams
-        The job's `tool` and `toolpath` parameter groups (ball radius, scallop height, chord share, ...).
-    signs : (len(surfaces),) float or None
-        +1/−1 per surface making S_u × S_v outward
-        (see `cam.spline.geometry.orientation_signs`); default +1.
-    progress, check_cancel : callable or None
-        cam's callbacks (see `cam`), called between patches.
+        The job's groups: ball and rest-ball radii, scallop height, setups, margins.
+    surfaces : SurfacesIn, optional
+        The fitted patches, for the patch passes; None when the job has none.
+    given_setups : list of Setup
+        Setups to consider first (segment's).
+    progress, check_cancel : callable, optional
+        cam's callbacks (see `cam`).
 
     Returns
     -------
-    Plan
-        Per setup the patches' passes (tool tips, mm, machine frame) and the linked move list, the
-        bounds, and the patches left unmachined or finished in part (`Plan.partial`).
+    JobPlan
 
     Raises
     ------
     GeometryError
-        When the scallop height does not lie in (0, tool radius).
-    ValueError
-        When `ids` and `surfaces` differ in length, or `setups` is empty.
+        When the scallop height is not below the ball radius, or no setup reaches any of the part.
     """
-    r, h, chord_fraction = float(tool.radius_mm), float(toolpath.scallop_height_mm), float(toolpath.chord_fraction)
+    progress = progress or (lambda f, m=None: None)
+    check_cancel = check_cancel or (lambda: None)
+    r, h = float(tool.radius_mm), float(toolpath.scallop_height_mm)
     if not 0 < h < r:
         raise GeometryError(f"the scallop height toolpath.scallop_height_mm must lie in (0, tool.radius_mm = {r}) "
                             f"mm, got {h}")
-    if len(ids) != len(surfaces):
-        raise ValueError(f"{len(ids)} patch ids for {len(surfaces)} surfaces")
-    signs = np.ones(len(surfaces)) if signs is None else np.asarray(signs, dtype=np.float64)
-    progress = progress or (lambda f, m=None: None)
-    check_cancel = check_cancel or (lambda: None)
-    progress(0.02, "setups and accessibility")
-    finish = _finishable(ids, surfaces, signs, r=r, min_reach=toolpath.min_reach_fraction)
-    assignment = assign_setups(ids, finish.surfaces, signs, setups, r=r, min_reach=toolpath.min_reach_fraction,
-                               obstacles=list(surfaces), skip={u["patch"] for u in finish.unmachined})
-    unmachined, partial = finish.unmachined + assignment.unmachined, []
-    whole = {int(i): s for i, s in zip(ids, surfaces)}  # what the tool must not cut: every surface, whole
-    total, done = max(sum(len(v) for v in assignment.patches.values()), 1), [0]
+    chord_mm = toolpath.chord_fraction * h
+    scallop_mm = (1 - toolpath.chord_fraction) * h - ROUNDING_MM
+    width = 2.0 * np.sqrt(scallop_mm * (2.0 * r - scallop_mm))
+    progress(0.01, "sampling the part")
+    samples = sample_surface(vertices, faces, spacing_mm=width / 3)
+    choice = choose_setups(samples, vertices, faces, tool_radius_mm=r, max_setups=toolpath.max_setups,
+                           given=list(given_setups))
+    if not choice.setups or not choice.any().any():
+        raise GeometryError(f"no setup reaches any of the part with a ball of radius {r} mm")
+    check_cancel()
+    parts = [setup_part(vertices, faces, s, tool_radius_mm=r) for s in choice.setups]
+    progress(0.05, "patch passes")
+    patch_plan, passes = _patch_passes(surfaces, choice.setups, parts, tool, toolpath, chord_mm=chord_mm,
+                                       check_cancel=check_cancel)
+    left = np.full(len(samples.area), np.inf)
+    stats = _finish_rest_of_part(parts, samples, choice.reach, passes, left, h=h, scallop_mm=scallop_mm,
+                                 chord_mm=chord_mm, progress=progress_between(progress, 0.2, 0.8),
+                                 check_cancel=check_cancel)
+    reach_main = choice.any()
+    finished = left <= h
+    top_z = [float((vertices @ s.rotation.T + s.translation)[:, 2].max()) for s in choice.setups]
+    programs = [_program(part, passes[k], program_name(k), "main", toolpath, top_z=top_z[k],
+                         bound_mm=float(np.max(left[finished & choice.reach[k]], initial=0.0)), stats=stats[k])
+                for k, part in enumerate(parts)]
+    rest_left, rest_programs = _rest(vertices, faces, samples, choice.setups, left, tool, toolpath, h=h,
+                                     chord_mm=chord_mm, top_z=top_z, progress=progress_between(progress, 0.8, 0.97),
+                                     check_cancel=check_cancel)
+    coverage = _coverage(samples, reach_main, left, rest_left, h)
+    progress(0.98, "linked")
+    return JobPlan(programs=[p for p in programs + rest_programs if p.passes], setups=choice.setups,
+                   patches=patch_plan, coverage=coverage, tool_radius_mm=r, rest_radius_mm=tool.rest_radius_mm,
+                   scallop_height_mm=h, scallop_share_mm=scallop_mm, chord_tolerance_mm=chord_mm)
 
-    def on_patch(setup_id: int, patch_id: int) -> None:
-        check_cancel()
-        progress(0.05 + 0.9 * done[0] / total, f"setup {setup_id}: patch {patch_id}")
-        done[0] += 1
 
-    out_setups = []
-    for position, setup in enumerate(assignment.setups):
-        solid = machine_patches(ids, surfaces, signs, setup)  # trimmed-off strips are still part of the part
-        index = build_index(solid, spacing_mm=max(r / 6, 0.2))
-        plans = _plan_setup_patches(setup, assignment.patches.get(setup.id, []),
-                                    machine_patches(ids, finish.surfaces, signs, setup), whole, index, tool, toolpath,
-                                    finish=finish, assignment=assignment, unmachined=unmachined, partial=partial,
-                                    on_patch=lambda pid, sid=setup.id: on_patch(sid, pid), check_cancel=check_cancel)
-        plans, moves = _link_setup(plans, solid, index, r=r, toolpath=toolpath)
-        out_setups.append(SetupPlan(setup=setup, patches=plans, moves=moves, program=program_name(position)))
-    progress(0.97, "linking done")
-    return Plan(setups=out_setups, unmachined=unmachined, tool_radius_mm=r, scallop_height_mm=h,
-                scallop_share_mm=(1 - chord_fraction) * h - ROUNDING_MM, chord_tolerance_mm=chord_fraction * h,
-                strategy=toolpath.strategy, partial=partial)
+def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: np.ndarray, tool: ToolParams,
+          toolpath: ToolpathParams, *, h: float, chord_mm: float, top_z: list[float], progress, check_cancel
+          ) -> tuple[np.ndarray | None, list[ProgramPlan]]:
+    """The rest ball's programs for what the main ball leaves over the target; None without a rest ball."""
+    if tool.rest_radius_mm is None:
+        return None, []
+    r2 = float(tool.rest_radius_mm)
+    if not h < r2:
+        raise GeometryError(f"the scallop height {h} mm must be below tool.rest_radius_mm = {r2} mm")
+    scallop2 = (1 - toolpath.chord_fraction) * h - ROUNDING_MM
+    rest_left = np.where(left <= h, left, np.inf)
+    programs = []
+    for k, setup in enumerate(setups):
+        part = setup_part(vertices, faces, setup, tool_radius_mm=r2)
+        points, normals = _machine(samples, setup)
+        target = ~(rest_left <= h) & part.reaches(points, normals)
+        progress(k / len(setups), f"setup {k + 1}: rest ball")
+        done = finish_setup(part, points[target], normals[target], scallop_mm=scallop2, chord_mm=chord_mm,
+                            target_mm=h, check_cancel=check_cancel)
+        rest_left[target] = np.minimum(rest_left[target], done.left)
+        finished = target.copy()
+        finished[target] = done.left <= h
+        programs.append(_program(part, _Passes(done.passes, done.strategy), program_name(k, rest=True), "rest",
+                                 toolpath, top_z=top_z[k], bound_mm=float(np.max(rest_left[finished], initial=0.0)),
+                                 stats={"targets": int(target.sum()), **done.stats}))
+    return rest_left, programs
+
+
+def _coverage(samples: SurfaceSamples, reach: np.ndarray, left: np.ndarray, rest_left: np.ndarray | None,
+              h: float) -> dict:
+    """The planner's shares of the part's area: reached by the main ball, finished, and what is left why."""
+    area = samples.area
+    total = float(area.sum())
+    finished = reach & (left <= h)
+    out = {"samples": int(len(area)), "area_mm2": total,
+           "reachable_share": float(area[reach].sum() / total),
+           "finished_share_of_reachable": float(area[finished].sum() / max(area[reach].sum(), 1e-300)),
+           "unfinished_reachable_mm2": float(area[reach & ~finished].sum()),
+           "unreachable_mm2": float(area[~reach].sum())}
+    if rest_left is not None:
+        by_rest = ~finished & (rest_left <= h)
+        out["finished_by_rest_mm2"] = float(area[by_rest].sum())
+        out["finished_share_with_rest"] = float(area[finished | by_rest].sum() / total)
+    return out

@@ -4,6 +4,8 @@ Between passes of one patch the tool stays down when the straight move is short 
 otherwise, and always between patches, it retracts to the clearance height, moves across in rapid,
 comes down in rapid to `retract_mm` above the next start and plunges at the plunge feed. Patches are
 visited greedily, each next the one whose entry is nearest to the current exit, which cuts air time.
+`link_on_part` links whole-part programs the same way, except that a link rises only as high as the part
+under its straight line needs (the rapid margin kept), not to the clearance height.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import numpy as np
 
 from cam.gcode.moves import FEED, PLUNGE, RAPID, MoveList
 
-__all__ = ["link_passes", "order_patches"]
+__all__ = ["link_on_part", "link_passes", "order_passes", "order_patches"]
 
 
 def order_patches(entries: np.ndarray, exits: np.ndarray, *, start: np.ndarray | None = None) -> list[int]:
@@ -105,3 +107,110 @@ def link_passes(patch_passes: list[tuple[int, list[np.ndarray]]], *, clearance_z
     if not pts:
         return MoveList(np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0, np.int64), clearance_z)
     return MoveList(np.array(pts), np.array(kinds, dtype=np.int8), np.array(owners, dtype=np.int64), clearance_z)
+
+
+def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -> list[tuple[int, bool]]:
+    """Greedy order of passes (tool tips (n_i, 3) each): next the pass whose start or end is nearest (in xy)
+    to where the last one ended, turned round when its end is the nearer.
+
+    Parameters
+    ----------
+    passes : list of (n_i, 3) float
+        Non-empty passes, mm.
+    start : (3,) float, optional
+        Where the tool is before the first pass; default the first pass's start.
+
+    Returns
+    -------
+    list of (int, bool)
+        Each pass's index and whether it is cut reversed, in cutting order.
+    """
+    if not passes:
+        return []
+    heads = np.array([p[0, :2] for p in passes])
+    tails = np.array([p[-1, :2] for p in passes])
+    here = heads[0] if start is None else np.asarray(start, dtype=np.float64)[:2]
+    free = np.ones(len(passes), dtype=bool)
+    out = []
+    for _ in range(len(passes)):
+        dh = np.where(free, np.linalg.norm(heads - here, axis=1), np.inf)
+        dt = np.where(free, np.linalg.norm(tails - here, axis=1), np.inf)
+        i, j = int(np.argmin(dh)), int(np.argmin(dt))
+        k, turned = (j, True) if dt[j] < dh[i] else (i, False)
+        free[k] = False
+        out.append((k, turned))
+        here = heads[k] if turned else tails[k]
+    return out
+
+
+def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, stay_down,
+                 travel_z=None, owner: int = -1) -> MoveList:
+    """One program's moves from passes given in cutting order (tool tips, machine frame).
+
+    Between two passes the tool feeds straight across when `stay_down(a, b)` allows it; otherwise it feeds
+    up to the height where it clears the part by the rapid margin (`safe_z(xy)`, at least `retract_mm` above
+    the tip), rises in rapid to the travel height of that link (`travel_z`, at most the clearance height),
+    moves across, comes down in rapid to the safe height over the next start and feeds down to it: rapids
+    never pass closer to the part than the margin.
+
+    Parameters
+    ----------
+    passes : list of (n_i, 3) float
+        Tool tips, mm, in cutting order.
+    clearance_z : float
+        Height of the first approach and the last retract, and the highest a link travels, mm.
+    retract_mm : float
+        Least height of a rapid's end above the tip it serves, mm.
+    safe_z : callable
+        safe_z(xy (2,)) -> tip height (mm) from which a ball lowered at xy keeps the rapid margin to the part.
+    stay_down : callable
+        stay_down(a (3,), b (3,)) -> bool: whether feeding straight from tip a to tip b is safe and short.
+    travel_z : callable, optional
+        travel_z(a_xy (2,), b_xy (2,)) -> tip height (mm) at which a rapid straight from over a to over b
+        keeps the margin; None: links travel at the clearance height.
+    owner : int
+        Id carried by the cutting moves.
+
+    Returns
+    -------
+    MoveList
+    """
+    pts: list[np.ndarray] = []
+    kinds: list[int] = []
+
+    def add(p, kind):
+        pts.append(np.asarray(p, dtype=np.float64))
+        kinds.append(kind)
+
+    here = None
+    for tips in passes:
+        if not len(tips):
+            continue
+        first = tips[0]
+        if here is not None and stay_down(here, first):
+            add(first, FEED)
+        else:
+            down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
+            if here is None:
+                add([first[0], first[1], clearance_z], RAPID)
+            else:
+                up = min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
+                across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down),
+                                                                   clearance_z)
+                add([here[0], here[1], up], FEED)
+                if across > up:
+                    add([here[0], here[1], across], RAPID)
+                add([first[0], first[1], across], RAPID)
+            add([first[0], first[1], down], RAPID)
+            add(first, PLUNGE)
+        for p in tips[1:]:
+            add(p, FEED)
+        here = tips[-1]
+    if here is not None:
+        up = max(safe_z(here[:2]), here[2] + retract_mm)
+        add([here[0], here[1], min(up, clearance_z)], FEED)
+        add([here[0], here[1], clearance_z], RAPID)
+    if not pts:
+        return MoveList(np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0, np.int64), clearance_z)
+    kinds_a = np.array(kinds, dtype=np.int8)
+    return MoveList(np.array(pts), kinds_a, np.where(kinds_a == FEED, owner, -1).astype(np.int64), clearance_z)

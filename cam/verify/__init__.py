@@ -1,8 +1,10 @@
 """The `verify` stage: an independent measurement of what the G-code programs leave on the part.
 
-`measure` sweeps the ball along the parsed program (the capsules of `cam.gcode.sweep`) and measures
-scallop, gouge and reach; `claims` reads what each setup's program claims to finish. Nothing here
-imports the planner.
+`part` measures every program on samples of the part's mesh (what the stage reports: reachable share,
+finished share of the reachable, gouge by cutting moves and rapids, unfinished area by reason);
+`measure` does the same on fitted patches, for what a patch program claims (`claims`); `solid` is the
+reach test both use. The ball is swept along the parsed program (the capsules of `cam.gcode.sweep`).
+Nothing here imports the planner.
 """
 
 from cam.verify.claims import claimed_patches

@@ -16,14 +16,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import maximum_filter
-from scipy.spatial import cKDTree
 
 from cam import CheckCancel
 from cam.gcode.parser import ParsedProgram
 from cam.gcode.sweep import Sweep
 from cam.spline.folds import flipped_normals
 from cam.spline.geometry import Patch
+from cam.verify.solid import SampleSolid
 
 __all__ = ["Measurement", "heat_colors", "measure_program"]
 
@@ -72,31 +71,6 @@ def _eval(patch: Patch, u: np.ndarray, v: np.ndarray):
     return p, cross / np.maximum(area, 1e-300)[..., None], area
 
 
-class _Part:
-    """All samples of the part in one setup, for the reachability tests."""
-
-    def __init__(self, points: np.ndarray, cell: float, r: float, tol: float):
-        self.tree = cKDTree(points)
-        self.r, self.tol = r, tol
-        self.lo = points[:, :2].min(axis=0) - r
-        shape = np.ceil((points[:, :2].max(axis=0) + r - self.lo) / cell).astype(int) + 1
-        self.cell = cell
-        top = np.full(shape, -np.inf)
-        ij = ((points[:, :2] - self.lo) / cell).astype(int)
-        np.maximum.at(top, (ij[:, 0], ij[:, 1]), points[:, 2])
-        rad = max((r - tol) / cell - 0.75, 0.0)  # cells wholly inside the shank circle
-        k = int(np.floor(rad))
-        y, x = np.mgrid[-k:k + 1, -k:k + 1]
-        self.shank_top = maximum_filter(top, footprint=(x * x + y * y) <= rad * rad, mode="constant", cval=-np.inf)
-
-    def reachable(self, p: np.ndarray, n: np.ndarray) -> np.ndarray:
-        centre = p + self.r * n
-        nearest, _ = self.tree.query(centre, distance_upper_bound=self.r)
-        ij = np.clip(((centre[:, :2] - self.lo) / self.cell).astype(int), 0, np.array(self.shank_top.shape) - 1)
-        shank = self.shank_top[ij[:, 0], ij[:, 1]] <= centre[:, 2] + self.tol
-        return (n[:, 2] > 1e-6) & (nearest >= self.r - self.tol) & shank
-
-
 def heat_colors(scallop: np.ndarray, target: float) -> np.ndarray:
     """uint8 (n, 3): blue → green → yellow → red up to the target, magenta above it, grey unreachable,
     black never reached.
@@ -143,7 +117,7 @@ def _golden(fn, lo: np.ndarray, hi: np.ndarray, iterations: int = 22) -> tuple[n
     return np.where(take, x1, x2), np.where(take, f1, f2)
 
 
-def _refine(patch: Patch, sweep: Sweep, solid: _Part, h: np.ndarray, ok: np.ndarray, gu: np.ndarray,
+def _refine(patch: Patch, sweep: Sweep, solid: SampleSolid, h: np.ndarray, ok: np.ndarray, gu: np.ndarray,
             gv: np.ndarray, reach: float) -> tuple[float, np.ndarray]:
     """Refine the grid maximum: the cusp between two passes is a ridge the grid only brushes.
 
@@ -248,7 +222,7 @@ def _grid_faces(nu: int, nv: int) -> np.ndarray:
     return np.concatenate([np.stack([q, q + nv, q + nv + 1], -1), np.stack([q, q + nv + 1, q + 1], -1)])
 
 
-def _measure_patch(patch: Patch, cut: Sweep, air: Sweep, solid: _Part, *, spacing: float, max_side: int,
+def _measure_patch(patch: Patch, cut: Sweep, air: Sweep, solid: SampleSolid, *, spacing: float, max_side: int,
                    reach: float, refine: bool) -> _PatchSamples:
     gu, gv = _grid(patch, spacing, max_side)
     uu, vv = np.meshgrid(gu, gv, indexing="ij")
@@ -366,7 +340,7 @@ def measure_program(program: ParsedProgram, machined: list[Patch], part: list[Pa
     air = Sweep(a[program.rapid], b[program.rapid], r, step=r / 2)
     part_pts = np.concatenate([_eval(p, *[x.ravel() for x in np.meshgrid(*_grid(p, spacing, max_side), indexing="ij")])[0]
                                for p in part])
-    solid = _Part(part_pts, cell=spacing, r=r, tol=reach_tol_mm)
+    solid = SampleSolid(part_pts, cell=spacing, r=r, tol=reach_tol_mm)
     done = []
     for patch in machined:
         check_cancel()

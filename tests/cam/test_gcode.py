@@ -14,7 +14,7 @@ from cam.gcode import DIALECTS, GCodeError, parse_program, write_program
 from cam.gcode.moves import FEED, PLUNGE, RAPID, MoveList
 from cam.gcode.setup import Setup
 from cam.params import ToolParams, ToolpathParams
-from cam.plan import plan_job
+from cam.plan.patch_job import plan_patches
 from cam.spline import analytic
 
 HEADER = {"cloud2cnc finishing program": "job test-job, setup 1, patches 1", "tool": "ball end mill radius 3 mm, T1",
@@ -24,7 +24,7 @@ HEADER = {"cloud2cnc finishing program": "job test-job, setup 1, patches 1", "to
 
 @pytest.fixture(scope="module")
 def moves() -> MoveList:
-    plan = plan_job([1], [analytic.cylinder(20.0, 12.0, 50.0)], [Setup(1, np.eye(3), np.zeros(3))],
+    plan = plan_patches([1], [analytic.cylinder(20.0, 12.0, 50.0)], [Setup(1, np.eye(3), np.zeros(3))],
                     ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     return plan.setups[0].moves
 

@@ -208,10 +208,13 @@ def test_segment_stage_writes_the_design_fields(tmp_path):
 
 
 def test_failed_segmentation_still_writes_segments_ply(tmp_path):
-    from worker.stages.segment import SegmentationFailed, run_segment
+    # No patch is a sharp height field: the stage ends skipped (plan finishes the part from the mesh) and
+    # keeps segments.ply and patches.json for inspection.
+    from worker.context import StageSkipped
+    from worker.stages.segment import run_segment
 
     v, f = quad_torus(12, 8)
-    with pytest.raises(SegmentationFailed) as info:
+    with pytest.raises(StageSkipped) as info:
         run_segment(_ctx(tmp_path, v, f, {"method": "motorcycle", "remove_base": False}))
     assert "not sharp height fields" in str(info.value) and "patch 0" in str(info.value)
     assert set(info.value.outputs) == {"segments.ply", "patches.json"}
@@ -232,12 +235,13 @@ def test_segment_stage_reports_unreadable_input(tmp_path):
 
 
 def test_segment_stage_names_the_file_it_cannot_segment(tmp_path):
-    from worker.context import StageError
+    from worker.context import StageSkipped
     from worker.stages.segment import run_segment
 
     g, q = quad_grid(3, 3)
-    with pytest.raises(StageError, match="^cannot segment quads.obj: removing the base leaves no faces to machine; "
-                                         "set segment.remove_base to false$"):
+    with pytest.raises(StageSkipped, match=r"^cannot segment quads.obj \(removing the base leaves no faces to machine; "
+                                           r"set segment.remove_base to false\); plan finishes the part from mesh.ply "
+                                           "without patch passes$"):
         run_segment(_ctx(tmp_path, g, q, {}))
 
 

@@ -7,11 +7,12 @@ import pytest
 
 from cam.gcode.setup import Setup
 from cam.params import ToolParams, ToolpathParams
-from cam.plan import plan_job, plan_patch
+from cam.plan import plan_patch
 from cam.plan.edge import edge_scallop, ray_capsule_entry
 from cam.plan.errors import TooConcave
 from cam.plan.grid import check_concavity, ring_grid
 from cam.plan.patch import exclude_points
+from cam.plan.patch_job import plan_patches
 from cam.plan.rings import corner_scallop, ring_path
 from cam.plan.scallop import flat_spacing
 from cam.spline import analytic
@@ -33,11 +34,11 @@ def test_tool_too_large_for_a_hollow_is_reported_not_cut():
     trough = analytic.cylinder(2.5, 10.0, 100.0, concave=True)
     with pytest.raises(TooConcave, match="not larger than the tool radius"):
         check_concavity(Patch(7, trough), 3.0)
-    plan = plan_job([7, 8], [trough, analytic.plane(10, 10, z=-5.0)], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([7, 8], [trough, analytic.plane(10, 10, z=-5.0)], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     assert [u["patch"] for u in plan.unmachined] == [7] and "radius of curvature 2.49" in plan.unmachined[0]["reason"]
     assert [p.patch for s in plan.setups for p in s.patches] == [8]
     # A smaller ball fits and machines it.
-    plan = plan_job([7], [trough], EYE, ToolParams(radius_mm=1.5), ToolpathParams(scallop_height_mm=0.05))
+    plan = plan_patches([7], [trough], EYE, ToolParams(radius_mm=1.5), ToolpathParams(scallop_height_mm=0.05))
     assert not plan.unmachined and plan.setups[0].patches[0].certified_scallop_mm <= 0.05
 
 
@@ -73,7 +74,7 @@ def test_a_folded_surface_is_found_and_reported_not_cut():
     # The fold (u in about [0.5, 0.75]) is left out and reported; the largest rectangle clear of it,
     # u in [0, 0.48] (x up to 6), is machined, and no contact lies on the fold.
     folded = _folded_plane()
-    plan = plan_job([3, 8], [folded, flat], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([3, 8], [folded, flat], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     assert plan.unmachined == []
     (claim,) = plan.partial
     assert claim["patch"] == 3 and "folds over itself" in claim["reason"]
@@ -88,7 +89,7 @@ def test_certificate_holds_and_adaptive_beats_the_paper_on_a_dome():
     dome = analytic.paraboloid(15.0, 16.0)
     out = {}
     for strategy in ("adaptive", "paper"):
-        plan = plan_job([1], [dome], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16, strategy=strategy))
+        plan = plan_patches([1], [dome], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16, strategy=strategy))
         pp = plan.setups[0].patches[0]
         assert pp.certified_scallop_mm <= 0.16
         out[strategy] = pp.path_length_mm
@@ -121,13 +122,13 @@ def test_a_patch_facing_down_goes_to_the_opposite_setup():
     from cam.spline.surface import make_bspline_surface
 
     bottom = make_bspline_surface(cp, top.knots_u, top.knots_v)
-    plan = plan_job([1, 2], [top, bottom], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([1, 2], [top, bottom], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     assert [s.setup.id for s in plan.setups] == [1, 2]
     assert [[p.patch for p in s.patches] for s in plan.setups] == [[1], [2]]
     assert plan.setups[1].program == "program-setup2.nc"
     assert np.allclose(plan.setups[1].setup.rotation, np.diag([1.0, -1.0, -1.0]))
     with pytest.raises(ValueError, match="scallop height"):
-        plan_job([1], [top], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=3.5))
+        plan_patches([1], [top], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=3.5))
 
 
 def test_largest_clear_rectangle_against_every_rectangle():
@@ -198,7 +199,7 @@ def test_a_fold_along_one_border_is_left_out_and_the_rest_machined():
     assert find_folds(lip)[0] > 0
     region = finishable_region(Patch(4, lip), 3.0)
     assert region.box[1] < 1.0 and 0.8 < region.kept < 1.0 and "folds over itself" in region.reason
-    plan = plan_job([4], [lip], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([4], [lip], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     assert plan.unmachined == []
     (pp,) = plan.setups[0].patches
     assert pp.reach_fraction == pytest.approx(region.kept) and pp.certified_scallop_mm <= 0.16
@@ -245,7 +246,7 @@ def test_a_collapsed_corner_is_left_out_as_degenerate_not_as_a_hollow():
 
 
 def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch):
-    import cam.plan.job as plan_module
+    import cam.plan.patch_job as plan_module
     from cam.plan.errors import NotPlannable
 
     real = plan_module.plan_patch
@@ -260,7 +261,7 @@ def test_a_patch_the_planner_cannot_lay_out_is_reported_not_a_crash(monkeypatch)
 
     flat = analytic.plane(10, 10, z=-5.0)
     beside = transform_surface(analytic.plane(10, 10), np.eye(3), np.array([0.0, 20.0, 0.0]))
-    plan = plan_job([3, 8], [beside, flat], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([3, 8], [beside, flat], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     assert [u["patch"] for u in plan.unmachined] == [3] and "curvature undefined" in plan.unmachined[0]["reason"]
     assert [p.patch for s in plan.setups for p in s.patches] == [8]
 
@@ -417,7 +418,7 @@ def test_a_wall_along_one_side_moves_only_that_side():
     # keeps its full width and gives up only the strip by the wall.
     floor = analytic.plane(20.0, 16.0)
     wall = analytic.fit_grid(lambda u, v: np.stack([20 * u, np.full_like(u, 16.0), 8 * v], -1), n=(4, 4))
-    plan = plan_job([1, 2], [floor, wall], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([1, 2], [floor, wall], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     pp = next(p for s in plan.setups for p in s.patches if p.patch == 1)
     u0, u1, v0, v1 = pp.region
     assert (u0, u1, v0) == (0.0, 1.0, 0.0)
@@ -430,7 +431,7 @@ def test_a_band_the_ball_cannot_reach_across_the_middle_leaves_both_sides_machin
     # then the strip before it (x < 8 - r), each claimed on its own rectangle and verified on it.
     floor = analytic.plane(20.0, 16.0)
     rib = analytic.fit_grid(lambda u, v: np.stack([np.full_like(u, 8.0), 16 * u, 6 * v], -1), n=(4, 4))
-    plan = plan_job([1, 2], [floor, rib], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
+    plan = plan_patches([1, 2], [floor, rib], EYE, ToolParams(radius_mm=3.0), ToolpathParams(scallop_height_mm=0.16))
     first, second = [p for s in plan.setups for p in s.patches if p.patch == 1]
     u0, u1, v0, v1 = first.region
     assert (u1, v0, v1) == (1.0, 0.0, 1.0) and (8 + 3.0) / 20 <= u0 < (8 + 3.0) / 20 + 0.01
@@ -509,7 +510,7 @@ def test_a_hollow_inside_the_rectangle_is_cut_out_not_the_whole_patch():
     assert 1.875 / 20 < u0 < 0.25 and (u1, v0, v1) == (1.0, 0.0, 1.0)
     assert pp.certified_scallop_mm <= 0.16 and pp.replans >= 1
     # The claim says why the rest is left: the hollow, not a neighbour the ball would touch.
-    from cam.plan.job import _claim
+    from cam.plan.patch_job import _claim
 
     assert pp.hollows and not pp.touched
     reason = _claim(plate.surface, pp, None)["reason"]

@@ -14,7 +14,7 @@ from cam.gcode import parse_program, write_program
 from cam.gcode.setup import Setup
 from cam.gcode.sweep import Sweep
 from cam.params import ToolParams, ToolpathParams
-from cam.plan import plan_job
+from cam.plan.patch_job import plan_patches
 from cam.spline import analytic
 from cam.spline.geometry import Patch
 from cam.spline.knots import sub_surface
@@ -139,7 +139,7 @@ def analytic_max(shape: Shape, prog) -> float:
 
 def run(surfaces, *, chord_fraction=0.002, strategy="adaptive"):
     ids = list(range(1, len(surfaces) + 1))
-    plan = plan_job(ids, surfaces, [Setup(1, np.eye(3), np.zeros(3))], ToolParams(radius_mm=R_TOOL), ToolpathParams(scallop_height_mm=TARGET, chord_fraction=chord_fraction, strategy=strategy))
+    plan = plan_patches(ids, surfaces, [Setup(1, np.eye(3), np.zeros(3))], ToolParams(radius_mm=R_TOOL), ToolpathParams(scallop_height_mm=TARGET, chord_fraction=chord_fraction, strategy=strategy))
     sp = plan.setups[0]
     prog = parse_program(write_program(sp.moves, header={"certified scallop bound": f"{plan.certified_scallop_mm:.6f}"}))
     patches = [Patch(i, s) for i, s in zip(ids, surfaces)]
@@ -207,7 +207,7 @@ def test_overhang_over_a_patch_is_left_out_of_its_claim(start, monkeypatch):
         monkeypatch.setattr(planner, "reachable_domain", lambda patch, index, **kw: planner._box(patch))
     floor = analytic.plane(20.0, 16.0)
     plate = analytic.fit_grid(lambda u, v: np.stack([8 + 4 * u, 6 + 4 * v, np.full_like(u, 2.0)], -1), n=(4, 4))
-    plan = plan_job([1, 2], [floor, plate], [Setup(1, np.eye(3), np.zeros(3))], ToolParams(radius_mm=R_TOOL), ToolpathParams(scallop_height_mm=TARGET))
+    plan = plan_patches([1, 2], [floor, plate], [Setup(1, np.eye(3), np.zeros(3))], ToolParams(radius_mm=R_TOOL), ToolpathParams(scallop_height_mm=TARGET))
     sp = plan.setups[0]
     pp = next(p for p in sp.patches if p.patch == 1)
     if start == "whole":

@@ -565,9 +565,12 @@ def synthetic_artifacts() -> dict[str, bytes]:
     out["scallop.ply"] = _ply_mesh_bytes(V, tri, vertex_scalar=scallop, fmt="binary_big_endian")
     out["verify.json"] = json.dumps({
         "target_scallop_mm": 0.16, "tool_radius_mm": 3.0, "certified_scallop_mm": 0.155, "max_scallop_mm": 0.149,
-        "p99_scallop_mm": 0.141, "max_gouge_mm": 0.0, "max_rapid_gouge_mm": 0.0, "fraction_over_target": 0.0,
-        "uncut_area_mm2": 1.25, "time_s": 0.8, "passed": True, "problems": [],
-        "setups": [{"setup": 1, "program": "program.nc", "certified_scallop_mm": 0.155, "max_scallop_mm": 0.149}]}).encode()
+        "p99_scallop_mm": 0.141, "max_gouge_mm": 0.0, "max_rapid_gouge_mm": 0.0, "reachable_share": 0.97,
+        "finished_share_of_reachable": 0.995, "min_finished_share": 0.98, "gouge_tolerance_mm": 0.01,
+        "summary": "finished 99.5 % of what a 3 mm ball can reach (97 % of the part)",
+        "unfinished_mm2": {"over_target_mm2": 0.5, "not_reached_mm2": 1.25}, "time_s": 0.8, "passed": True,
+        "problems": [], "programs": [{"program": "program.nc", "setup": 1, "role": "main", "certified_scallop_mm": 0.155,
+                                      "max_gouge_mm": 0.0}]}).encode()
     return out
 
 
@@ -613,8 +616,9 @@ def test_every_3d_view_from_design_artifacts(server, page):
     card = page.locator(".verify-card")
     card.wait_for()
     text = card.inner_text()
-    assert "0.149" in text and "0.16" in text and "0.155" in text and "passed: within target" in text
-    assert "over target" in text.lower() and "uncut area" in text.lower()
+    assert "0.149" in text and "0.16" in text and "0.155" in text and "passed" in text and "not passed" not in text
+    assert "finished 99.5 % of what a 3 mm ball can reach" in text and "99.5 %" in text
+    assert "over target" in text.lower() and "not reached" in text.lower() and "program.nc" in text, text
     page.wait_for_selector('.viewport[data-state="ready"]')  # the default view (scallop) is up
     views = ["cloud", "mesh_raw", "mesh", "quads", "patches", "surfaces", "toolpaths", "scallop"]
     for key in views:

@@ -7,16 +7,19 @@ from typing import Any
 
 import numpy as np
 
+from cam import GeometryError
 from cam.fit.grid import PatchGridError, orient_grid, patch_grid
 from cam.fit.patches import FitResult, fit_patches
 from cam.io import read_json, read_ply, write_json
 from cam.io.iges import write_iges
 from cam.io.quads import read_quad_obj
-from worker.context import StageContext, StageError
+from worker.context import StageContext, StageError, StageSkipped
 
 
 def run_fit(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params.effective("fit")  # tolerance_mm resolved from the scallop height when unset
+    if "patches.json" not in ctx.inputs or "quads.obj" not in ctx.inputs:
+        raise StageSkipped("segment made no patches: nothing to fit; plan finishes the part from mesh.ply alone")
     ctx.progress(0.02, "reading the quad mesh, patches and mesh")
     vertices, quads = ctx.read("quads.obj", read_quad_obj)
     patches, sharp_edges = _patches(ctx.read("patches.json", read_json))
@@ -37,17 +40,23 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
                 grid = patch_grid(quads, p["faces"], corner=(p.get("corners") or [None])[0], rows=p.get("rows"),
                                   cols=p.get("cols"))
         except PatchGridError as exc:
-            raise StageError(f"patch {p['id']} is not a rectangular grid of quads ({exc}); "
-                             "rerun segment or change segment parameters") from exc
+            # Left out like an invalid patch: plan finishes its area from the mesh.
+            skipped.append({"patch": int(p["id"]), "reason": f"not a rectangular grid of quads ({exc})"})
+            continue
         grids.append(grid)
         ids.append(int(p["id"]))
         in_patch[np.asarray(p["faces"], dtype=np.int64)] = True
     if not grids:
-        raise StageError("segment left no valid patch to fit")
+        raise StageSkipped("segment left no patch that is a grid of quads: nothing to fit; plan finishes the part "
+                           "from mesh.ply alone")
     ctx.check_cancel()
-    result = fit_patches(vertices, grids, mesh.points, mesh.faces, params, other_quads=quads[~in_patch],
-                         sharp_edges=sharp_edges, progress=ctx.progress_between(0.05, 0.9),
-                         check_cancel=ctx.check_cancel)
+    try:
+        result = fit_patches(vertices, grids, mesh.points, mesh.faces, params, other_quads=quads[~in_patch],
+                             sharp_edges=sharp_edges, progress=ctx.progress_between(0.05, 0.9),
+                             check_cancel=ctx.check_cancel)
+    except GeometryError as exc:
+        raise StageSkipped(f"the patches cannot be fitted ({exc}); plan finishes the part from mesh.ply without "
+                           "patch passes") from exc
     ctx.progress(0.92, "writing surfaces.json and surfaces.igs")
     shapes = [(g.shape[0] - 1, g.shape[1] - 1) for g in grids]
     document = surfaces_document(result, ids, skipped, shapes)

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from cam import GeometryError
 from cam.io import read_ply, write_json
 from cam.io.quads import write_quad_obj
 from cam.remesh.quadriflow import remesh_quads
-from worker.context import StageContext, StageError
+from worker.context import StageContext, StageError, StageSkipped
 
 
 def run_remesh(ctx: StageContext) -> dict[str, Path]:
@@ -15,9 +16,13 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
     mesh = ctx.read("mesh.ply", read_ply)
     if mesh.faces is None or len(mesh.faces) == 0:
         raise StageError("mesh.ply has no faces; the remesh stage needs a triangle mesh")
-    # RemeshFailed (a GeometryError) carries the user's message as it is; the runner shows it.
-    result = remesh_quads(mesh.points, mesh.faces, ctx.params.remesh, progress=ctx.progress_between(0.05, 0.9),
-                          check_cancel=ctx.check_cancel)
+    try:
+        result = remesh_quads(mesh.points, mesh.faces, ctx.params.remesh, progress=ctx.progress_between(0.05, 0.9),
+                              check_cancel=ctx.check_cancel)
+    except GeometryError as exc:
+        # No quad layout, no patches: the job goes on, and plan finishes the part from mesh.ply alone.
+        raise StageSkipped(f"no usable quad layout ({exc}); plan finishes the part from mesh.ply without "
+                           "patch passes") from exc
     ctx.check_cancel()
     ctx.progress(0.95, "writing quads.obj")
     report = result.report

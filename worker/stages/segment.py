@@ -13,17 +13,10 @@ from cam.io.quads import read_quad_obj, write_ply_quads_colored
 from cam.mesh.quads import face_normals
 from cam.params import SegmentParams
 from cam.segment import Segmentation, segment_quads
-from worker.context import StageContext, StageError
+from worker.context import StageContext, StageSkipped
 
 BASE_COLOR = (90, 90, 90)
 INVALID_COLOR = (255, 0, 0)
-
-
-class SegmentationFailed(StageError):
-    """Some patch is not a sharp height field; ``outputs`` were written anyway, for inspection."""
-
-    def __init__(self, message: str, outputs: dict[str, Path]) -> None:
-        super().__init__(message, outputs=outputs)
 
 
 def patch_colors(labels: np.ndarray, invalid: set[int]) -> np.ndarray:
@@ -92,13 +85,16 @@ def _failure_message(seg: Segmentation) -> str:
 
 def run_segment(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params.segment
+    if "quads.obj" not in ctx.inputs:
+        raise StageSkipped("remesh made no quad mesh: no patches; plan finishes the part from mesh.ply alone")
     ctx.progress(0.02, "reading quads.obj")
     vertices, faces = ctx.read("quads.obj", read_quad_obj)
     try:
         seg = segment_quads(vertices, faces, params, progress=ctx.progress_between(0.05, 0.9),
                             check_cancel=ctx.check_cancel)
     except GeometryError as exc:  # the message names the mesh's defect; the user also needs to know which file
-        raise StageError(f"cannot segment quads.obj: {exc}") from exc
+        raise StageSkipped(f"cannot segment quads.obj ({exc}); plan finishes the part from mesh.ply without "
+                           "patch passes") from exc
     ctx.progress(0.92, "writing")
     invalid = {p.id for p in seg.invalid}
     out = {
@@ -108,8 +104,12 @@ def run_segment(ctx: StageContext) -> dict[str, Path]:
         ),
         "patches.json": write_json(ctx.output("patches.json"), patches_document(seg, params)),
     }
-    if not seg.ok:
-        raise SegmentationFailed(_failure_message(seg), out)
+    if len(seg.invalid) == len(seg.patches):
+        # Nothing to fit: kept for inspection, and plan finishes the part from the mesh.
+        raise StageSkipped(_failure_message(seg) + "; plan finishes the part from mesh.ply without patch passes",
+                           outputs=out)
     out["setup.json"] = write_json(ctx.output("setup.json"), setup_document(seg, vertices, faces))
-    ctx.progress(1.0, None)
+    # Invalid patches are listed in patches.json (valid: false); fit leaves them out and plan finishes
+    # their area from the mesh.
+    ctx.progress(1.0, None if seg.ok else _failure_message(seg) + "; fit leaves them out")
     return out

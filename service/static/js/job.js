@@ -17,7 +17,8 @@ function first(obj, keys) {
   return undefined;
 }
 
-/** verify.json: DESIGN names max / p99 scallop, gouge, uncut area; field names are read tolerantly. */
+/** verify.json: what the programs leave on the part (mesh.ply): reachable share, finished share of it, largest
+ * scallop, gouges, and the unfinished area by reason; field names are read tolerantly. */
 function verifyCard(doc, params) {
   const target = first(doc, ["target_scallop_mm", "target_mm", "scallop_target_mm", "scallop_height_mm"]) ?? params?.toolpath?.scallop_height_mm;
   const max = first(doc, ["max_scallop_mm", "scallop.max_mm", "scallop_max_mm"]);
@@ -25,38 +26,48 @@ function verifyCard(doc, params) {
   const certified = first(doc, ["certified_scallop_mm"]);
   const gouge = first(doc, ["max_gouge_mm", "gouge_mm", "gouge.max_mm"]);
   const rapidGouge = first(doc, ["max_rapid_gouge_mm"]);
+  const reachable = first(doc, ["reachable_share"]);
+  const finished = first(doc, ["finished_share_of_reachable"]);
   const reached = first(doc, ["reached_fraction", "machined_fraction", "coverage"]);
-  const over = first(doc, ["fraction_over_target"]);
   const uncut = first(doc, ["uncut_area_mm2", "uncut.area_mm2"]);
-  const bound = typeof certified === "number" ? certified : target;
-  const within = typeof max === "number" && typeof bound === "number" ? max <= bound * (1 + 1e-6) + 1e-9 : undefined;
+  const minShare = first(doc, ["min_finished_share"]) ?? params?.toolpath?.min_finished_share;
+  const gougeTol = first(doc, ["gouge_tolerance_mm"]) ?? params?.toolpath?.gouge_tolerance_mm ?? 1e-3;
+  const within = typeof max === "number" && typeof target === "number" ? max <= target * (1 + 1e-6) + 1e-9 : undefined;
   const passed = typeof doc.passed === "boolean" ? doc.passed : within;
   const problems = Array.isArray(doc.problems) ? doc.problems : [];
   const pct = (v) => (typeof v === "number" ? `${formatNumber(v <= 1 ? v * 100 : v, 4)} %` : v);
   const tile = (label, value, unit, cls = "") => h(`div.metric${cls}`, h("div.metric-label", label),
     h("div.metric-value", value === undefined ? "—" : typeof value === "number" ? formatNumber(value) : String(value),
       unit && typeof value === "number" ? h("span.unit", ` ${unit}`) : null));
-  const verdict = passed === undefined ? null : passed ? h("span.badge.st-succeeded", "passed: within target")
+  const verdict = passed === undefined ? null : passed ? h("span.badge.st-succeeded", "passed")
     : h("span.badge.st-failed", "not passed");
   const scalars = Object.entries(doc).filter(([, v]) => ["number", "string", "boolean"].includes(typeof v));
-  const setups = Array.isArray(doc.setups) ? doc.setups : [];
+  const reasons = doc.unfinished_mm2 && typeof doc.unfinished_mm2 === "object" ? Object.entries(doc.unfinished_mm2) : [];
+  const programs = Array.isArray(doc.programs) ? doc.programs : Array.isArray(doc.setups) ? doc.setups : [];
+  const finishedBad = typeof finished === "number" && typeof minShare === "number" && finished < minShare;
   return h("section.card.verify-card", { "aria-labelledby": "verify-title" },
     h("div.card-head", h("h2#verify-title", "Verification"), verdict),
+    typeof doc.summary === "string" ? h("p.verify-summary", doc.summary) : null,
     h("div.metrics",
+      finished !== undefined ? tile("Finished of reachable", pct(finished), "", finishedBad ? ".bad" : ".good") : null,
+      reachable !== undefined ? tile("Reachable by the ball", pct(reachable)) : null,
       tile("Max scallop", max, "mm", within === false ? ".bad" : within ? ".good" : ""),
       tile("Target", target, "mm"),
-      certified !== undefined ? tile("Certified bound", certified, "mm") : null,
+      certified !== undefined && certified !== null ? tile("Certified bound", certified, "mm") : null,
       tile("p99 scallop", p99, "mm"),
-      reached !== undefined || over === undefined ? tile("Reached", pct(reached)) : tile("Over target", pct(over), "", over > 0 ? ".bad" : ""),
-      tile("Gouge", gouge, "mm", typeof gouge === "number" && gouge > 1e-3 ? ".bad" : ""),
-      rapidGouge !== undefined ? tile("Rapid gouge", rapidGouge, "mm", rapidGouge > 1e-3 ? ".bad" : "") : null,
-      tile("Uncut area", uncut, "mm²")),
+      reached !== undefined ? tile("Reached", pct(reached)) : null,
+      tile("Gouge", gouge, "mm", typeof gouge === "number" && gouge > gougeTol ? ".bad" : ""),
+      rapidGouge !== undefined ? tile("Rapid gouge", rapidGouge, "mm", rapidGouge > gougeTol ? ".bad" : "") : null,
+      uncut !== undefined ? tile("Uncut area", uncut, "mm²") : null),
+    reasons.length ? h("table.kv", h("caption", "Not finished, by reason"), h("tbody", reasons.map(([k, v]) => h("tr",
+      h("th", { scope: "row" }, k.replace(/_mm2$/, "").replaceAll("_", " ")),
+      h("td", typeof v === "number" ? `${formatNumber(v)} mm²` : String(v)))))) : null,
     problems.length ? h("ul.problems", problems.map((p) => h("li.error-text", String(p)))) : null,
     h("details", h("summary", "All figures"), h("table.kv", h("tbody",
-      scalars.map(([k, v]) => h("tr", h("th", { scope: "row" }, k), h("td", typeof v === "number" ? formatNumber(v, 6) : String(v)))))),
-    setups.length ? h("table.kv", h("caption", "Per setup"), h("tbody", setups.map((s) => h("tr",
+      scalars.map(([k, v]) => h("tr", h("th", { scope: "row" }, k), h("td", typeof v === "number" ? formatNumber(v, 6) : String(v))))))),
+    programs.length ? h("table.kv", h("caption", "Per program"), h("tbody", programs.map((s) => h("tr",
       h("th", { scope: "row" }, `${s.program ?? `setup ${s.setup}`}`),
-      h("td", Object.entries(s).filter(([, v]) => typeof v === "number").map(([k, v]) => `${k} ${formatNumber(v)}`).join(", ")))))) : null));
+      h("td", Object.entries(s).filter(([, v]) => typeof v === "number").map(([k, v]) => `${k} ${formatNumber(v)}`).join(", ")))))) : null);
 }
 
 function ingestCard(doc) {

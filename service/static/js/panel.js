@@ -19,7 +19,7 @@ export function webglAvailable() {
   }
 }
 
-const programNames = (arts) => [...arts.keys()].filter((n) => /^program(-setup\d+)?\.nc$/.test(n)).sort();
+const programNames = (arts) => [...arts.keys()].filter((n) => /^program(-setup\d+)?(-rest)?\.nc$/.test(n)).sort();
 
 /** The views, in pipeline order. `ready(arts)` says whether the artifacts it needs exist. */
 const VIEWS = [
@@ -311,7 +311,8 @@ export class ViewerPanel {
       const pathSetups = new Set((toolpath?.setups || []).map((s) => s.id));
       const gcode = [];
       for (const name of programs) {
-        const setup = setups.find((s) => s.program === name)?.id ?? (name === "program.nc" ? (setups[0]?.id ?? 0) : Number(/setup(\d+)/.exec(name)?.[1]));
+        const setup = setups.find((s) => s.program === name || s.rest_program === name)?.id
+          ?? (/^program(-rest)?\.nc$/.test(name) ? (setups[0]?.id ?? 0) : Number(/setup(\d+)/.exec(name)?.[1]));
         const buf = await this._bytes(name, label);
         parsing();
         const parsed = await parse("gcode", buf);
@@ -349,8 +350,10 @@ export class ViewerPanel {
       for (const v of vals) if (Number.isFinite(v) && v >= 0) hi = Math.max(hi, v); else unreached++;
       const lo = 0;
       const top = Math.max(hi, typeof target === "number" ? target : 0) || 1;
+      const verify = this.arts.has("verify.json") ? await this._json("verify.json") : null;
+      const summary = typeof verify?.summary === "string" ? `${verify.summary}. ` : "";
       return { object: m.heatmapLayer(geo, vals, lo, top),
-        info: `Scallop (${field}): max ${formatNumber(hi)} mm${typeof target === "number" ? `, target ${target} mm` : ""}`
+        info: `${summary}Scallop (${field}): max ${formatNumber(hi)} mm${typeof target === "number" ? `, target ${target} mm` : ""}`
           + `${unreached ? `; ${formatNumber(unreached)} vertices not reached (grey)` : ""}`
           + `${(geo.shownCount ?? geo.vertexCount) < geo.vertexCount ? `; showing ${formatNumber(geo.shownCount)} of ${formatNumber(geo.vertexCount)} samples` : ""}`,
         colorbar: { lo, hi: top, target, max: hi } };

@@ -1,0 +1,104 @@
+"""The part as one setup's ball sees it: drop-cutter heights, closest points and the table it stands on.
+
+The part is clamped on the machine table at its lowest point: the ball centre never goes below the
+table plus its radius, so beside a wall that reaches the bottom of the part the ball rests at that
+height (and touches the wall up from there), and nothing below it is reachable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cam.gcode.setup import Setup
+from cam.mesh.closest import MeshIndex, closest_points, mesh_index, triangle_normals
+from cam.mesh.dropcutter import DropIndex, drop_ball, drop_index
+
+__all__ = ["REACH_TOL_MM", "SetupPart", "setup_part"]
+
+#: A ball within this of a surface counts as touching it (and a lowered ball as not cutting it).
+REACH_TOL_MM = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class SetupPart:
+    """The part in a setup's machine frame, for one ball.
+
+    Attributes
+    ----------
+    setup : Setup
+        The setup whose machine frame the part is in.
+    index : DropIndex
+        The part's triangles bucketed for the ball.
+    mesh : MeshIndex
+        The same triangles for closest-point queries.
+    floor_z : float
+        The table: the part's lowest z, mm. The ball centre stays at least r above it.
+    """
+
+    setup: Setup
+    index: DropIndex
+    mesh: MeshIndex
+    floor_z: float
+
+    @property
+    def radius_mm(self) -> float:
+        """The ball radius, mm."""
+        return self.index.radius_mm
+
+    def drop(self, xy: np.ndarray) -> np.ndarray:
+        """Lowest ball-centre height over each point (n, 2) that cuts neither the part nor the table: (n,) mm."""
+        return np.maximum(drop_ball(self.index, xy), self.floor_z + self.radius_mm)
+
+    def contact(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Drop-cutter heights (n,) and the z of the part's normal where the ball touches it (NaN where the
+        ball rests on the table rather than on the part)."""
+        z, point = drop_ball(self.index, xy, contact=True)
+        table = self.floor_z + self.radius_mm
+        normal_z = np.where(z >= table, (z - point[:, 2]) / self.radius_mm, np.nan)
+        return np.maximum(z, table), normal_z
+
+    def nearest(self, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (n,) mm from each ball centre (n, 3) to the part, and the part's unit normal (n, 3) where
+        it is nearest (from the foot towards the centre: the contact normal of a ball touching it there)."""
+        foot, _, tri, _ = closest_points(self.mesh, centres)
+        d = centres - foot
+        length = np.linalg.norm(d, axis=1, keepdims=True)
+        normal = np.where(length > 1e-9, d / np.maximum(length, 1e-300), triangle_normals(self.mesh, tri))
+        return length[:, 0], normal
+
+    def wall_normals(self, centres: np.ndarray) -> np.ndarray:
+        """Unit normals (n, 3) of the part where it is nearest to each ball centre (n, 3)."""
+        return self.nearest(centres)[1]
+
+    def reaches(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """bool (k,): the ball touching each point (centre r along its outward normal) can be lowered there
+        without cutting the part or the table (NaN rows: False)."""
+        centre = np.asarray(points) + (self.radius_mm + REACH_TOL_MM) * np.asarray(normals)
+        ok = np.all(np.isfinite(centre), axis=1)
+        out = np.zeros(len(centre), dtype=bool)
+        out[ok] = self.drop(centre[ok, :2]) <= centre[ok, 2] + REACH_TOL_MM
+        return out
+
+
+def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_radius_mm: float) -> SetupPart:
+    """The closed part (part frame, outward) moved into the setup's machine frame, for a ball of this radius.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        mm, part frame.
+    faces : (m, 3) int
+        Triangles, outward.
+    setup : Setup
+    tool_radius_mm : float
+
+    Returns
+    -------
+    SetupPart
+    """
+    V = np.asarray(vertices, dtype=np.float64) @ setup.rotation.T + setup.translation
+    F = np.asarray(faces, dtype=np.int64)
+    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm, closed=True), mesh=mesh_index(V, F),
+                     floor_z=float(V[:, 2].min()))

@@ -1,0 +1,213 @@
+"""What the programs leave on the part itself: measured on samples of `mesh.ply`, from the G-code alone.
+
+Every program's moves are re-derived from its text (ball centre = tip + r·Z in its setup's frame). The
+part is sampled evenly; a sample is reachable by a ball when, in some setup, its normal does not face
+below the horizontal, the ball touching it (centre r along its normal) contains no sample of the part,
+nothing of the part stands in the cylinder above that centre, and the centre is not below the table (the
+part's lowest point) plus r. For every sample the
+normal line meets the swept capsules of the cutting moves: the first entry above the surface is the
+material left there; a sample inside a capsule is cut into by its depth in it. Rapid moves are checked
+against a ball grown by the rapid margin. A sample is finished when some program leaves at most the target
+there; the report gives the finished share of what the main ball reaches, and the rest by reason.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from cam import CheckCancel
+from cam.gcode.parser import ParsedProgram
+from cam.gcode.setup import Setup
+from cam.gcode.sweep import Sweep
+from cam.mesh.samples import SurfaceSamples, sample_surface
+from cam.verify.solid import SampleSolid
+
+__all__ = ["PartMeasurement", "ProgramIn", "REACH_TOL_MM", "measure_part", "vertex_values"]
+
+#: A ball within this of the part's samples counts as touching it, not cutting it (the samples lie on the
+#: part's facets: between them the ball meets the part at most the sagitta of their spacing deeper).
+REACH_TOL_MM = 0.01
+
+
+@dataclass(frozen=True)
+class ProgramIn:
+    """One program to measure: its setup, its parsed moves, its ball, its role ("main" or "rest"), its name."""
+
+    setup: Setup
+    program: ParsedProgram
+    tool_radius_mm: float
+    role: str
+    name: str
+
+
+@dataclass(frozen=True)
+class PartMeasurement:
+    """The report (JSON-ready), and per sample of the part its material left (mm; +inf where no pass came
+    within the measured range) and whether the main ball reaches it.
+
+    Attributes
+    ----------
+    report : dict
+    samples : SurfaceSamples
+        The part's samples, part frame.
+    left : (k,) float64
+    reach : (k,) bool
+    """
+
+    report: dict
+    samples: SurfaceSamples
+    left: np.ndarray
+    reach: np.ndarray
+
+
+def _frame(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    return samples.points @ setup.rotation.T + setup.translation, samples.normals @ setup.rotation.T
+
+
+def _reach(samples: SurfaceSamples, setups: list[Setup], r: float, cell: float) -> np.ndarray:
+    """bool (k,): reached by a ball of radius r from some setup."""
+    out = np.zeros(len(samples.area), dtype=bool)
+    for setup in setups:
+        p, n = _frame(samples, setup)
+        solid = SampleSolid(p, r=r, cell=cell, tol=REACH_TOL_MM, floor_z=float(p[:, 2].min()))
+        out |= solid.reachable(p, n, lift_mm=REACH_TOL_MM, min_normal_z=-1e-3)
+    return out
+
+
+def _sweeps(item: ProgramIn, samples: SurfaceSamples, *, reach_mm: float, margin_mm: float
+            ) -> tuple[np.ndarray, float, float, float]:
+    """One program on the samples: material left (k,), deepest cut into the part by cutting moves and by
+    rapids, and how far rapids come inside the margin, mm."""
+    r = item.tool_radius_mm
+    p, n = _frame(samples, item.setup)
+    z = np.array([0.0, 0.0, r])
+    a, b, rapid = item.program.start + z, item.program.end + z, item.program.rapid
+    left, gouge = Sweep(a[~rapid], b[~rapid], r, step=r / 2).probe(p, n, reach_mm)
+    _, inside_margin = Sweep(a[rapid], b[rapid], r + margin_mm, step=r / 2).probe(p, n, 0.0)
+    rapid_gouge = np.maximum(inside_margin - margin_mm, 0.0)
+    return left, float(gouge.max(initial=0.0)), float(rapid_gouge.max(initial=0.0)), \
+        float(inside_margin.max(initial=0.0))
+
+
+def measure_part(vertices: np.ndarray, faces: np.ndarray, programs: list[ProgramIn], setups: list[Setup], *,
+                 tool_radius_mm: float, rest_radius_mm: float | None, target_mm: float, spacing_mm: float,
+                 rapid_margin_mm: float, check_cancel: CheckCancel | None = None) -> PartMeasurement:
+    """Measure every program on the part.
+
+    Parameters
+    ----------
+    vertices, faces : (n, 3) float, (m, 3) int
+        The part (`mesh.ply`), closed, outward, mm, part frame.
+    programs : list of ProgramIn
+    setups : list of Setup
+        Every setup of the job (reach is from any of them).
+    tool_radius_mm : float
+        The main ball: the reachable share is its.
+    rest_radius_mm : float or None
+        The rest ball, when the job has one.
+    target_mm : float
+        The scallop height a sample counts as finished within.
+    spacing_mm : float
+        Longest edge of the pieces each sample stands for.
+    rapid_margin_mm : float
+        The distance rapids must keep from the part.
+    check_cancel : callable, optional
+
+    Returns
+    -------
+    PartMeasurement
+    """
+    t0 = time.perf_counter()
+    check_cancel = check_cancel or (lambda: None)
+    samples = sample_surface(vertices, faces, spacing_mm=spacing_mm)
+    area, total = samples.area, float(samples.area.sum())
+    reach_main = _reach(samples, setups, tool_radius_mm, cell=spacing_mm)
+    reach_rest = _reach(samples, setups, rest_radius_mm, cell=spacing_mm) if rest_radius_mm else None
+    left = np.full(len(area), np.inf)
+    per_program, gouge, rapid_gouge = [], 0.0, 0.0
+    measured_to = max(4 * target_mm, 0.25 * tool_radius_mm)
+    for item in programs:
+        check_cancel()
+        mine, g, rg, margin_in = _sweeps(item, samples, reach_mm=measured_to, margin_mm=rapid_margin_mm)
+        left = np.minimum(left, mine)
+        gouge, rapid_gouge = max(gouge, g), max(rapid_gouge, rg)
+        per_program.append({"program": item.name, "setup": item.setup.id, "role": item.role,
+                            "tool_radius_mm": item.tool_radius_mm, "max_gouge_mm": g, "max_rapid_gouge_mm": rg,
+                            "rapid_margin_violation_mm": margin_in, "certified_scallop_mm": _certified(item.program),
+                            "moves": {"cutting": int((~item.program.rapid).sum()),
+                                      "rapid": int(item.program.rapid.sum())}})
+    finished = reach_main & (left <= target_mm)
+    report = _report(area, total, reach_main, reach_rest, left, finished, target_mm, tool_radius_mm, rest_radius_mm)
+    report.update({"sample_spacing_mm": spacing_mm, "samples": int(len(area)), "max_gouge_mm": gouge,
+                   "max_rapid_gouge_mm": rapid_gouge, "rapid_margin_mm": rapid_margin_mm,
+                   "certified_scallop_mm": max((p["certified_scallop_mm"] or 0.0 for p in per_program), default=None),
+                   "programs": per_program, "time_s": time.perf_counter() - t0})
+    return PartMeasurement(report=report, samples=samples, left=left, reach=reach_main)
+
+
+def _certified(program: ParsedProgram) -> float | None:
+    value = program.header_value("certified scallop bound")
+    try:
+        return float(value.split()[0]) if value else None
+    except ValueError:
+        return None
+
+
+def _report(area, total, reach_main, reach_rest, left, finished, target, r, r2) -> dict:
+    """Shares of the part's area by what happened to it."""
+    reachable = float(area[reach_main].sum())
+    fin_left = left[finished]
+    reached = reach_main & np.isfinite(left)
+    unfinished = ~finished
+    rest_reach = reach_rest if reach_rest is not None else np.zeros_like(reach_main)
+    by_reason = {
+        "unreachable_by_main_ball_mm2": float(area[~reach_main].sum()),
+        "finished_outside_main_reach_mm2": float(area[~reach_main & (left <= target)].sum()),
+        "left_for_rest_tool_mm2": float(area[~reach_main & rest_reach & ~(left <= target)].sum()),
+        "unreachable_by_any_ball_mm2": float(area[~reach_main & ~rest_reach].sum()),
+        "not_planned_mm2": float(area[reach_main & unfinished].sum()),
+    }
+    finished_share = float(area[finished | (~reach_main & (left <= target))].sum()) / total
+    summary = (f"finished {100 * float(area[finished].sum()) / max(reachable, 1e-300):.1f} % of what a {r:g} mm "
+               f"ball can reach ({100 * reachable / total:.1f} % of the part)")
+    if r2:
+        summary += f"; with the {r2:g} mm rest ball, {100 * finished_share:.1f} % of the part is finished"
+    return {
+        "tool_radius_mm": r, "rest_radius_mm": r2, "target_scallop_mm": target, "area_mm2": total,
+        "reachable_share": reachable / total,
+        "finished_share_of_reachable": float(area[finished].sum()) / max(reachable, 1e-300),
+        "finished_share": finished_share,
+        "max_scallop_mm": float(fin_left.max()) if len(fin_left) else None,
+        "p99_scallop_mm": float(np.percentile(fin_left, 99)) if len(fin_left) else None,
+        "max_left_on_reachable_mm": float(left[reached].max()) if reached.any() else None,
+        "unfinished_mm2": by_reason,
+        "summary": summary,
+    }
+
+
+def vertex_values(measurement: PartMeasurement, n_vertices: int, faces: np.ndarray) -> np.ndarray:
+    """Per vertex of the part, the largest material left on the samples of its faces that the main ball
+    reaches (mm; +inf where such a sample was never reached, NaN where none is reachable), for the heat map.
+
+    Parameters
+    ----------
+    measurement : PartMeasurement
+    n_vertices : int
+    faces : (m, 3) int
+        The part's triangles (the samples' `face` indexes them).
+
+    Returns
+    -------
+    (n_vertices,) float64
+    """
+    s = measurement.samples
+    value = np.where(measurement.reach, measurement.left, -np.inf)
+    per_face = np.full(len(faces), -np.inf)
+    np.maximum.at(per_face, s.face, value)
+    per_vertex = np.full(n_vertices, -np.inf)
+    for k in range(3):
+        np.maximum.at(per_vertex, np.asarray(faces)[:, k], per_face)
+    return np.where(np.isneginf(per_vertex), np.nan, per_vertex)
