@@ -9,8 +9,8 @@ clean-up passes, and are measured again.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy.ndimage import binary_dilation
@@ -20,6 +20,7 @@ from cam.plan.cleanup import cleanup_passes
 from cam.plan.coverage import left_on_samples
 from cam.plan.part import SetupPart
 from cam.plan.raster import raster_passes
+from cam.plan.scallop import flat_spacing
 from cam.plan.waterline import waterline_passes
 
 __all__ = ["FinishedSetup", "finish_setup", "target_region"]
@@ -103,7 +104,7 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
     if not len(points):
         return out
     r = part.radius_mm
-    step = 2.0 * np.sqrt(max(scallop_mm * (2.0 * r - scallop_mm), 0.0))
+    step = float(flat_spacing(scallop_mm, r))
     centres = points + r * normals
     lo, hi = centres[:, :2].min(axis=0) - step, centres[:, :2].max(axis=0) + step
     bounds = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))

@@ -36,6 +36,7 @@ from cam.plan.link import link_on_part, order_passes
 from cam.plan.part import SetupPart, setup_part
 from cam.plan.patch import ROUNDING_MM
 from cam.plan.patch_job import PatchesPlan, plan_patches, program_name
+from cam.plan.scallop import flat_spacing
 from cam.plan.setups import choose_setups
 from cam.spline.surface import BSplineSurface
 
@@ -248,7 +249,7 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
                             f"mm, got {h}")
     chord_mm = toolpath.chord_fraction * h
     scallop_mm = (1 - toolpath.chord_fraction) * h - ROUNDING_MM
-    width = 2.0 * np.sqrt(scallop_mm * (2.0 * r - scallop_mm))
+    width = float(flat_spacing(scallop_mm, r))
     progress(0.01, "sampling the part")
     samples = sample_surface(vertices, faces, spacing_mm=width / 3)
     choice = choose_setups(samples, vertices, faces, tool_radius_mm=r, max_setups=toolpath.max_setups,
@@ -314,7 +315,7 @@ def _coverage(samples: SurfaceSamples, reach: np.ndarray, left: np.ndarray, rest
     area = samples.area
     total = float(area.sum())
     finished = reach & (left <= h)
-    out = {"samples": int(len(area)), "area_mm2": total,
+    out = {"samples": len(area), "area_mm2": total,
            "reachable_share": float(area[reach].sum() / total),
            "finished_share_of_reachable": float(area[finished].sum() / max(area[reach].sum(), 1e-300)),
            "unfinished_reachable_mm2": float(area[reach & ~finished].sum()),

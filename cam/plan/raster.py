@@ -10,8 +10,9 @@ tool axis) and where the caller wants the part finished.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
+from itertools import pairwise
 
 import numpy as np
 from scipy.ndimage import binary_dilation
@@ -20,6 +21,7 @@ from cam import CheckCancel
 from cam.plan.cusps import cusp_heights
 from cam.plan.lines import follow_part, merge_straight, split_runs
 from cam.plan.part import SetupPart
+from cam.plan.scallop import flat_spacing
 
 __all__ = ["RasterPasses", "raster_passes"]
 
@@ -69,7 +71,7 @@ def _pairs(lines: list[_Line]) -> list[tuple[int, int, np.ndarray]]:
     out: dict[tuple[int, int], np.ndarray] = {}
     for j in range(keep.shape[1]):
         rows = np.flatnonzero(keep[:, j])
-        for a, b in zip(rows[:-1], rows[1:]):
+        for a, b in pairwise(rows):
             out.setdefault((int(a), int(b)), np.zeros(keep.shape[1], bool))[j] = True
     return [(a, b, m) for (a, b), m in out.items()]
 
@@ -105,7 +107,7 @@ def raster_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
     r = part.radius_mm
     check_cancel = check_cancel or (lambda: None)
     x0, x1, y0, y1 = bounds
-    step = 2.0 * np.sqrt(max(scallop_mm * (2.0 * r - scallop_mm), 0.0))
+    step = float(flat_spacing(scallop_mm, r))
     dx = min(0.25 * step, 0.5)
     x = np.arange(x0, x1 + 0.5 * dx, dx)
     ys = np.arange(y0 + 0.5 * step, y1, step) if y1 - y0 > step else np.array([0.5 * (y0 + y1)])

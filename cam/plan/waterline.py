@@ -12,8 +12,9 @@ sixteenth of the first interval. A level runs only where the part is steep (its 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
+from itertools import pairwise
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -23,6 +24,7 @@ from cam import CheckCancel
 from cam.plan.cusps import cusp_heights
 from cam.plan.lines import GOUGE_TOL_MM, merge_straight, split_runs
 from cam.plan.part import SetupPart
+from cam.plan.scallop import flat_spacing
 
 __all__ = ["WaterlinePasses", "waterline_passes"]
 
@@ -204,7 +206,7 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
     """
     r = part.radius_mm
     check_cancel = check_cancel or (lambda: None)
-    step = 2.0 * np.sqrt(max(scallop_mm * (2.0 * r - scallop_mm), 0.0))
+    step = float(flat_spacing(scallop_mm, r))
     spacing = grid_mm or min(0.25 * step, 0.5)
     grid = _grid(part, bounds, spacing)
     steep_cos = float(np.cos(np.radians(min_slope_deg)))
@@ -239,7 +241,7 @@ def _over(levels: dict[float, list[np.ndarray]], part: SetupPart, scallop_mm: fl
     """For each pair of neighbouring levels (upper, lower): the upper level's points whose cusp with the
     nearest point of the lower one is over the share (xy (k, 2)), and the largest finite cusp height."""
     zs = sorted((z for z, runs in levels.items() if runs), reverse=True)
-    for za, zb in zip(zs[:-1], zs[1:]):
+    for za, zb in pairwise(zs):
         # Every third point: a cusp changes slowly along a level, and a new level is laid a whole interval
         # around each point found over the share.
         a = np.concatenate(levels[za])[::3]

@@ -141,7 +141,7 @@ def measure_part(vertices: np.ndarray, faces: np.ndarray, programs: list[Program
                                       "rapid": int(item.program.rapid.sum())}})
     finished = reach_main & (left <= target_mm)
     report = _report(area, total, reach_main, reach_rest, left, finished, target_mm, tool_radius_mm, rest_radius_mm)
-    report.update({"sample_spacing_mm": spacing_mm, "samples": int(len(area)), "max_gouge_mm": gouge,
+    report.update({"sample_spacing_mm": spacing_mm, "samples": len(area), "max_gouge_mm": gouge,
                    "max_rapid_gouge_mm": rapid_gouge, "rapid_margin_mm": rapid_margin_mm,
                    "certified_scallop_mm": max((p["certified_scallop_mm"] or 0.0 for p in per_program), default=None),
                    "programs": per_program, "time_s": time.perf_counter() - t0})
