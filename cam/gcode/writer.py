@@ -26,7 +26,9 @@ def _num(x: float, decimals: int) -> str:
 
 
 def _comments(text: str, dialect: Dialect) -> list[str]:
-    text = text.replace("(", "[").replace(")", "]")
+    # No bracket may end the comment early, and no ';': Fanuc ends the block there, and readers such as
+    # pygcode take it for an end-of-line comment even inside parentheses.
+    text = text.replace("(", "[").replace(")", "]").replace(";", ",")
     if dialect.upper_comments:
         text = text.upper()
     width = (dialect.max_line or 200) - 2

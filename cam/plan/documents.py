@@ -37,7 +37,7 @@ def program_header(plan: JobPlan, program: ProgramPlan, *, job_id: str, tool_num
         "target scallop": f"{plan.scallop_height_mm:.4f} mm",
         "certified scallop bound": f"{program.bound_mm:.6f} mm",
         "bound": "the largest scallop the planner measured on the part's samples this program finishes "
-                 "(exact ball sweep along each sample's normal); verify measures again",
+                 "(exact ball sweep along each sample's normal), verify measures again",
         "budget split": f"scallop {plan.scallop_share_mm:.4f} mm + chord {plan.chord_tolerance_mm:.4f} mm",
         "passes": ", ".join(f"{k} {v}" for k, v in sorted(counts.items())),
         "units": "mm, absolute, tool tip in the machine frame (ball centre = tip + r Z)",

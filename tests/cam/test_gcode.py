@@ -19,7 +19,9 @@ from cam.spline import analytic
 
 HEADER = {"cloud2cnc finishing program": "job test-job, setup 1, patches 1", "tool": "ball end mill radius 3 mm, T1",
           "target scallop": "0.1600 mm", "certified scallop bound": "0.159000 mm", "units": "mm", "dialect": "x",
-          "generator": "cloud2cnc plan 1"}
+          "generator": "cloud2cnc plan 1",
+          # What a header may say: brackets and a ';' (Fanuc ends a block at ';', pygcode starts a comment).
+          "bound": "measured on the samples (exact sweep); verify measures again"}
 
 
 @pytest.fixture(scope="module")
