@@ -203,9 +203,8 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
         d = float(np.linalg.norm(b[:2] - a[:2]))
         if d > 2.5 * r or abs(b[2] - a[2]) > r:
             return False
-        t = np.linspace(0.0, 1.0, max(int(np.ceil(d / (0.1 * r))), 1) + 1)
-        line = a + t[:, None] * (b - a) + np.array([0.0, 0.0, r])
-        return bool(np.all(part.drop(line[:, :2]) <= line[:, 2] + GOUGE_TOL_MM))
+        lift = np.array([0.0, 0.0, r])
+        return part.clear_between(a + lift, b + lift, tol_mm=GOUGE_TOL_MM)
 
     moves = link_on_part(ordered, clearance_z=top_z + toolpath.clearance_mm, retract_mm=toolpath.retract_mm,
                          safe_z=safe_z, stay_down=stay_down, travel_z=travel_z)

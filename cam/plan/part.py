@@ -68,6 +68,21 @@ class SetupPart:
         normal = np.where(length > 1e-9, d / np.maximum(length, 1e-300), triangle_normals(self.mesh, tri))
         return length[:, 0], normal
 
+    def clear_between(self, a: np.ndarray, b: np.ndarray, *, tol_mm: float) -> bool:
+        """Whether the ball centre can move straight from a (3,) to b (3,) (mm) without cutting the part or
+        the table by more than about 2·tol_mm.
+
+        The drop-cutter checks centres along the move (each may sit tol_mm low). A part point at least r
+        from two centres s apart is at least √(r² − s²/4) ≈ r − s²/8r from the move between them, so the
+        centres are spaced s = √(8 r tol) along the move's 3-D length, not its xy length: a steep move
+        past the top of a wall is checked as finely as a flat one.
+        """
+        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        spacing = float(np.sqrt(8.0 * self.radius_mm * tol_mm))
+        n = max(int(np.ceil(float(np.linalg.norm(b - a)) / spacing)), 1)
+        c = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+        return bool(np.all(self.drop(c[:, :2]) <= c[:, 2] + tol_mm))
+
     def wall_normals(self, centres: np.ndarray) -> np.ndarray:
         """Unit normals (n, 3) of the part where it is nearest to each ball centre (n, 3)."""
         return self.nearest(centres)[1]

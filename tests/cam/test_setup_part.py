@@ -1,0 +1,53 @@
+"""SetupPart.clear_between: may the ball centre move straight from a to b without cutting the part?
+
+A 10 mm cube with a corner at the origin, standing on the table (z = 0); ball r = 3 mm. Along its top
+edge at x = 0, z = 10 the answer is exact: the ball cuts exactly where its centre comes nearer than r.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from cam.gcode.setup import Setup
+from cam.plan.part import setup_part
+
+R = 3.0
+
+
+@pytest.fixture(scope="module")
+def part():
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    box.apply_translation((5.0, 5.0, 5.0))
+    return setup_part(box.vertices, box.faces, Setup(1, np.eye(3), np.zeros(3)), tool_radius_mm=R)
+
+
+def _depth_past_edge(a, b, n=100001) -> float:
+    """Reference: how deep the ball passes inside the top edge (x = 0, z = 10) along a → b, mm."""
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    c = np.asarray(a) + t * (np.asarray(b) - np.asarray(a))
+    return float(np.max(R - np.hypot(c[:, 0], c[:, 2] - 10.0)))
+
+
+def test_a_steep_move_past_a_wall_top_is_caught_between_its_ends(part):
+    # Both ends are clear and 0.15 mm apart in xy; on the way down, the ball passes 0.018 mm inside the edge.
+    a, b = np.array([-2.9, 5.0, 12.5]), np.array([-3.05, 5.0, 8.0])
+    assert part.drop(a[None, :2])[0] <= a[2] and part.drop(b[None, :2])[0] <= b[2]
+    assert 0.015 < _depth_past_edge(a, b) < 0.02
+    assert not part.clear_between(a, b, tol_mm=1e-4)
+    assert not part.clear_between(b, a, tol_mm=1e-4)
+    # The same move 0.1 mm farther out is clear.
+    shift = np.array([-0.1, 0.0, 0.0])
+    assert _depth_past_edge(a + shift, b + shift) < 0
+    assert part.clear_between(a + shift, b + shift, tol_mm=1e-4)
+
+
+def test_riding_the_top_face_is_clear_and_dipping_into_it_is_not(part):
+    # The ball resting on the top face (its centre exactly r above it) all the way across.
+    assert part.clear_between(np.array([2.0, 5.0, 13.0]), np.array([8.0, 3.0, 13.0]), tol_mm=1e-4)
+    assert not part.clear_between(np.array([2.0, 5.0, 13.0]), np.array([8.0, 5.0, 12.99]), tol_mm=1e-4)
+    # Down beside the wall to the table: clear only while the ball keeps r from the wall and the table.
+    assert part.clear_between(np.array([-3.01, 5.0, 14.0]), np.array([-3.01, 5.0, 3.0]), tol_mm=1e-4)
+    assert not part.clear_between(np.array([-3.01, 5.0, 14.0]), np.array([-3.01, 5.0, 2.9]), tol_mm=1e-4)
+    assert not part.clear_between(np.array([-2.99, 5.0, 14.0]), np.array([-2.99, 5.0, 3.0]), tol_mm=1e-4)
