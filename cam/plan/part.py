@@ -115,5 +115,7 @@ def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_ra
     """
     V = np.asarray(vertices, dtype=np.float64) @ setup.rotation.T + setup.translation
     F = np.asarray(faces, dtype=np.int64)
-    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm, closed=True), mesh=mesh_index(V, F),
+    # Every triangle, not only those facing the tool (enough for a valid solid): a reconstructed mesh can
+    # fold over itself, and the README example's did, where a down-facing triangle is met first.
+    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm), mesh=mesh_index(V, F),
                      floor_z=float(V[:, 2].min()))

@@ -51,3 +51,16 @@ def test_riding_the_top_face_is_clear_and_dipping_into_it_is_not(part):
     assert part.clear_between(np.array([-3.01, 5.0, 14.0]), np.array([-3.01, 5.0, 3.0]), tol_mm=1e-4)
     assert not part.clear_between(np.array([-3.01, 5.0, 14.0]), np.array([-3.01, 5.0, 2.9]), tol_mm=1e-4)
     assert not part.clear_between(np.array([-2.99, 5.0, 14.0]), np.array([-2.99, 5.0, 3.0]), tol_mm=1e-4)
+
+
+def test_a_piece_whose_triangles_face_inwards_is_still_met_from_above():
+    # A mesh from a scan can hold a fold or a piece turned inside out; its top then faces down. The ball
+    # must still stop on it: every triangle counts, whatever way it faces.
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    box.apply_translation((5.0, 5.0, 5.0))
+    small = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    small.apply_translation((-8.0, 5.0, 1.0))
+    vertices = np.vstack([box.vertices, small.vertices])
+    faces = np.vstack([box.faces, small.faces[:, ::-1] + len(box.vertices)])  # the small box inside out
+    part = setup_part(vertices, faces, Setup(1, np.eye(3), np.zeros(3)), tool_radius_mm=R)
+    np.testing.assert_allclose(part.drop(np.array([[-8.0, 5.0], [-8.5, 4.5]])), [2.0 + R, 2.0 + R])

@@ -9,7 +9,7 @@ import numpy as np
 from cam.gcode import GCodeError, parse_program
 from cam.io import read_ply, read_setups, write_json
 from cam.io.atomic import atomic_write
-from cam.verify import heat_colors
+from cam.verify import heat_colors, pass_width_mm
 from cam.verify.part import ProgramIn, measure_part, vertex_values
 from worker.context import StageContext, StageError
 
@@ -76,7 +76,7 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
     programs = _programs(ctx, doc, setups)
     if not programs:
         raise StageError("setup.json names no program to verify")
-    width = 2.0 * np.sqrt(tp.scallop_height_mm * (2.0 * tool.radius_mm - tp.scallop_height_mm))
+    width = pass_width_mm(tool.radius_mm, tp.scallop_height_mm)
     ctx.progress(0.05, "measuring the programs on the part")
     m = measure_part(mesh.points, mesh.faces, programs, setups, tool_radius_mm=tool.radius_mm,
                      rest_radius_mm=tool.rest_radius_mm, target_mm=tp.scallop_height_mm,
