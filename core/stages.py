@@ -61,7 +61,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="denoise",
-        version="1",
+        version="2",
         inputs=("mesh_raw.ply",),
         outputs=("mesh.ply", "denoise.json"),
         param_groups=("denoise",),

@@ -48,6 +48,31 @@ def test_stage_writes_a_denoised_mesh_and_its_report(tmp_path):
     assert report["iterations"] >= 1 and seen and seen[-1] == 1.0
 
 
+def test_a_filter_that_would_change_the_part_passes_the_input_on(tmp_path):
+    # A CAD export: a block with two round pockets, 96 % of its faces slivers. MeshTGV shrinks it (to a
+    # quarter of its volume); plan must machine the part, not that, so the input goes on as mesh.ply.
+    mf = pytest.importorskip("manifold3d")
+    solid = (mf.Manifold.cube((60.0, 40.0, 20.0)) - mf.Manifold.cylinder(15.0, 8.0, 8.0, 48).translate((20.0, 20.0, 8.0))
+             - mf.Manifold.cylinder(15.0, 5.0, 5.0, 48).translate((42.0, 20.0, 8.0))).to_mesh()
+    v, f = np.asarray(solid.vert_properties, dtype=np.float64)[:, :3], np.asarray(solid.tri_verts, dtype=np.int64)
+    src = write_ply_mesh(tmp_path / "mesh_raw.ply", v, f)
+    with pytest.raises(StageSkipped, match=r"^MeshTGV would change the part, not only its noise \(the surface moved by "
+                                           r"up to .* mm \(.*% of the part's diagonal; volume ×0\.\d+\)\): mesh_raw.ply "
+                                           r"is passed on as mesh.ply") as info:
+        run_denoise(_ctx(tmp_path, src))
+    assert info.value.outputs["mesh.ply"].read_bytes() == src.read_bytes()
+    shift = json.loads(info.value.outputs["denoise.json"].read_text())["shift"]
+    assert not shift["kept"] and shift["volume_ratio"] < 0.95 and shift["max_mm"] > 0.05 * shift["diagonal_mm"]
+
+
+def test_the_noisy_box_is_kept_and_its_shift_reported(tmp_path):
+    src, noisy, f = _noisy_box(tmp_path)
+    out = run_denoise(_ctx(tmp_path, src))
+    shift = json.loads(out["denoise.json"].read_text())["shift"]
+    # Noise of 0.3 mm on a 20 mm box: the filter moves the surface by about that, and keeps the volume.
+    assert shift["kept"] and shift["max_mm"] < 1.5 and abs(shift["volume_ratio"] - 1.0) < 0.05
+
+
 def test_disabled_passes_the_mesh_on_unchanged(tmp_path):
     src, _, _ = _noisy_box(tmp_path)
     with pytest.raises(StageSkipped, match="enabled is false") as info:

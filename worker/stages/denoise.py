@@ -6,7 +6,7 @@ import shutil
 from pathlib import Path
 
 from cam import GeometryError
-from cam.denoise import denoise_mesh
+from cam.denoise import denoise_mesh, measure_shift
 from cam.io import read_ply, write_json, write_ply_mesh
 from worker.context import StageContext, StageError, StageSkipped
 
@@ -31,10 +31,21 @@ def run_denoise(ctx: StageContext) -> dict[str, Path]:
         # The core's message describes the mesh; the user needs to know which file it means.
         raise StageError(f"cannot denoise mesh_raw.ply: {exc}") from exc
     ctx.check_cancel()
+    shift = measure_shift(mesh.points, result.vertices, mesh.faces)
+    report = {"iterations": result.iterations, **result.report,
+              "shift": {"max_mm": shift.max_mm, "diagonal_mm": shift.diagonal_mm, "volume_ratio": shift.volume_ratio,
+                        "kept": not shift.too_far}}
+    if shift.too_far:
+        # Another shape, not the part without its noise: plan must not machine it. The input goes on.
+        passed = ctx.output("mesh.ply")
+        shutil.copyfile(ctx.inputs["mesh_raw.ply"], passed)
+        raise StageSkipped(f"MeshTGV would change the part, not only its noise ({shift.describe()}): mesh_raw.ply is "
+                           "passed on as mesh.ply (see denoise.json)",
+                           outputs={"mesh.ply": passed, "denoise.json": write_json(ctx.output("denoise.json"), report)})
     out = {
         "mesh.ply": write_ply_mesh(ctx.output("mesh.ply"), result.vertices, mesh.faces,
                                    comments=[f"cloud2cnc denoise: MeshTGV, {result.iterations} iterations"]),
-        "denoise.json": write_json(ctx.output("denoise.json"), {"iterations": result.iterations, **result.report}),
+        "denoise.json": write_json(ctx.output("denoise.json"), report),
     }
     ctx.progress(1.0, None)
     return out
