@@ -3,9 +3,8 @@ direction, corner-shrunk steps) and vs an OpenCAMLib drop-cutter raster (bench/r
 independently from their G-code, at r = 3 mm and h = 0.16 and 0.02 mm.
 
 Writes bench/results/toolpath.md and toolpath-*.png. Parts: the analytic surfaces; Fandisk ×10 and Block
-×10 (when ../shared/data is there) as our own stages fit them from the clean meshes; and end to end, the
-whole pipeline (`cloud2cnc run`'s code, default parameters) on 50k-point clouds sampled from those meshes,
-with each stage's wall time and what the program covers.
+×10 (when ../shared/data is there) as our own stages fit them from the clean meshes. The patch passes
+alone: what the whole pipeline finishes of a part, against the part itself, is bench/coverage.py's.
 """
 
 from __future__ import annotations
@@ -29,7 +28,7 @@ from cam.gcode import parse_program, write_program
 from cam.spline import analytic
 from cam.gcode.setup import Setup
 from cam.spline.geometry import Patch, orientation_signs
-from cam.plan import plan_job
+from cam.plan.patch_job import plan_patches
 from cam.spline.geometry import area_share, machine_patches, surface_area
 from cam.spline.knots import sub_surface
 from cam.verify import measure_program
@@ -51,7 +50,7 @@ def run_part(ids, surfaces, signs, setups, h, strategy, *, raster=False, raster_
     """Plan with `strategy`, then verify every setup's program on exactly what it claims; with raster=True
     also the OpenCAMLib raster on the same claimed rectangles. Sums over setups."""
     t0 = time.perf_counter()
-    plan = plan_job(ids, surfaces, setups, ToolParams(radius_mm=R), ToolpathParams(scallop_height_mm=h, strategy=strategy), signs=signs)
+    plan = plan_patches(ids, surfaces, setups, ToolParams(radius_mm=R), ToolpathParams(scallop_height_mm=h, strategy=strategy), signs=signs)
     t_plan = time.perf_counter() - t0
     claims: dict[int, list] = {}  # a patch finished in part may be claimed on several rectangles
     for q in plan.partial:
@@ -109,50 +108,6 @@ CLOUD_POINTS = 50_000
 # tried: the parts section runs one try at the flat stepover, at h = 0.16 only; `parts-fine` (h = 0.02,
 # three times the lines) runs ours and the paper's without it.
 PART_RASTER_TRIES = 1
-
-
-def end_to_end(name: str) -> dict | None:
-    """The whole pipeline on a 50k-point cloud (with normals) of `name`_gt.obj ×10; None without the data."""
-    import trimesh
-
-    from cam.io import read_surfaces
-    from core.config import Settings
-    from worker.local import run_local
-
-    src = DATA / f"{name}_gt.obj"
-    if not src.exists():
-        return None
-    clean = trimesh.load(src, process=False)
-    clean.apply_scale(10.0)
-    points, face = trimesh.sample.sample_surface(clean, CLOUD_POINTS, seed=0)
-    with tempfile.TemporaryDirectory() as tmp:
-        cloud = Path(tmp) / f"{name}.xyz"
-        np.savetxt(cloud, np.hstack([points, clean.face_normals[face]]), fmt="%.6f")
-        out = Path(tmp) / "out"
-        with open(os.devnull, "w") as quiet:
-            reports = run_local(cloud, out, params={"tool": {"radius_mm": R}}, settings=Settings(), stream=quiet)
-        row = {"stages": {r.name: (r.status, r.seconds) for r in reports}}
-        if not (out / "verify.json").exists():
-            row["error"] = next((r.error for r in reports if r.status == "failed"), "no verify.json")
-            return row
-        verify = json.loads((out / "verify.json").read_text())
-        tp = json.loads((out / "toolpath.json").read_text())
-        surf = json.loads((out / "surfaces.json").read_text())
-        ids, surfaces = read_surfaces(out / "surfaces.json")
-    area = {i: surface_area(s) for i, s in zip(ids, surfaces)}
-    kept: dict[int, float] = {}  # a patch finished in part may be claimed on several rectangles
-    for q in tp["partial"]:
-        kept[q["patch"]] = kept.get(q["patch"], 0.0) + q["kept"]
-    machined = list(dict.fromkeys(p["patch"] for st in tp["setups"] for p in st["patches"]))
-    covered = sum(area[i] * kept.get(i, 1.0) for i in machined)
-    row.update(patches=len(ids), over=len(surf["over_tolerance"]), folded=len(surf.get("folded", [])),
-               machined=len(machined), partial=sum(i in kept for i in machined), unmachined=len(tp["unmachined"]),
-               coverage=covered / sum(area.values()), passed=verify["passed"], certified=verify["certified_scallop_mm"],
-               max=verify["max_scallop_mm"], gouge=max(verify["max_gouge_mm"] or 0, verify["max_rapid_gouge_mm"] or 0),
-               length=sum(s["stats"]["cut_length_mm"] for s in tp["setups"]),
-               air=sum(s["stats"]["air_length_mm"] for s in tp["setups"]),
-               retracts=sum(s["stats"]["retracts"] for s in tp["setups"]))
-    return row
 
 
 def fitted_part(name: str, tmp: Path):
@@ -280,17 +235,12 @@ def section_parts(heights: tuple[float, ...] = (0.16,)) -> dict:
     return {"rows": parts, "pictures": pictures, "machine": describe_machine()}
 
 
-def section_e2e() -> dict:
-    return {"rows": [(name, end_to_end(name)) for name in ("fandisk", "block")], "machine": describe_machine()}
-
-
-SECTIONS = {"analytic": section_analytic, "parts": section_parts, "parts-fine": lambda: section_parts((0.02,)),
-            "e2e": section_e2e}
+SECTIONS = {"analytic": section_analytic, "parts": section_parts, "parts-fine": lambda: section_parts((0.02,))}
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def main() -> None:
-    """`python bench/toolpath.py [analytic] [parts] [parts-fine] [e2e]` runs those sections (all by default), keeps each
+    """`python bench/toolpath.py [analytic] [parts] [parts-fine]` runs those sections (all by default), keeps each
     section's numbers in results/toolpath-<section>.json and writes toolpath.md from every section on file."""
     for name in sys.argv[1:] or list(SECTIONS):
         if name not in SECTIONS:
@@ -341,7 +291,7 @@ def write_report(done: dict) -> None:
              "`cam.verify`. Chord share 10 % of h (sag along the normal, and sideways deviation "
              "times tan φ), 4-decimal rounding budgeted. `covered`: the share of the surfaces' "
              "area the program claims to finish (rectangles the planner kept); the raster is measured on the same "
-             "claims. Generated by `python bench/toolpath.py [analytic] [parts] [parts-fine] [e2e]` (each section's numbers are kept in "
+             "claims. Generated by `python bench/toolpath.py [analytic] [parts] [parts-fine]` (each section's numbers are kept in "
              "`toolpath-<section>.json`).", "", f"Machine: {'; '.join(machines)}.", "",
              "## Analytic surfaces", "", HEAD, "|---" * COLUMNS + "|"]
     lines += [line(name, h, a, p) for name, h, a, p in rows]
@@ -364,30 +314,6 @@ def write_report(done: dict) -> None:
     lines.append("")
     for name, file in pictures:
         lines += [f"![{name}: tool paths and verified scallop]({file})", ""]
-    stage_names = ("ingest", "reconstruct", "denoise", "remesh", "segment", "fit", "plan", "verify")
-    lines += ["## End to end", "",
-              f"The whole pipeline (default parameters, r = {R} mm, h = 0.16 mm) on {CLOUD_POINTS:,}-point clouds with "
-              "normals sampled from the clean meshes ×10, in this run. Coverage: the share of the fitted surfaces' "
-              "area the program finishes under its certificate (patches finished on a parameter rectangle count with "
-              "that rectangle); the rest is listed in setup.json under `partial` and `unmachined` with reasons.", "",
-              "| part | " + " | ".join(f"{n} s" for n in stage_names) + " | total s | patches | over tolerance | folded "
-              "| machined (partial) | unmachined | coverage | verify | certified mm | verified max / target | max gouge mm "
-              "| path mm | air mm | retracts |",
-              "|---|" + "---:|" * (len(stage_names) + 1) + "---:|---:|---:|---|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
-    for name, row in done.get("e2e", {}).get("rows", []):
-        if row is None:
-            lines.append(f"| {name} ×10 | not run: {DATA / (name + '_gt.obj')} is absent |")
-            continue
-        secs = [row["stages"].get(n, ("-", float("nan"))) for n in stage_names]
-        cells = " | ".join(f"{t:.1f}" if st != "failed" else f"failed ({t:.1f})" for st, t in secs)
-        total = sum(t for _, t in secs if t == t)
-        if "error" in row:
-            lines.append(f"| {name} ×10 | {cells} | {total:.0f} | stopped: {row['error']} |")
-            continue
-        lines.append(f"| {name} ×10 | {cells} | {total:.0f} | {row['patches']} | {row['over']} | {row['folded']} "
-                     f"| {row['machined']} ({row['partial']}) | {row['unmachined']} | {row['coverage']:.1%} "
-                     f"| {'passed' if row['passed'] else 'FAILED'} | {row['certified'] or 0:.4f} | {(row['max'] or 0) / 0.16:.3f} "
-                     f"| {row['gouge']:.1e} | {row['length']:.0f} | {row['air']:.0f} | {row['retracts']} |")
     lines.append("")
     out = RESULTS / "toolpath.md"
     # A hand-written "## Notes" section (analysis of a run) survives a rerun of the tables.
