@@ -2,8 +2,8 @@
 
 `part` measures every program on samples of the part's mesh (what the stage reports: reachable share,
 finished share of the reachable, gouge by cutting moves and rapids, unfinished area by reason);
-`measure` does the same on fitted patches, for what a patch program claims (`claims`); `solid` is the
-reach test both use. The ball is swept along the parsed program (the capsules of `cam.gcode.sweep`).
+`measure` does the same on fitted patches, for what a patch program claims (`claims`), with `solid`'s
+reach test on the patches' samples (`part` lowers the ball onto the mesh's triangles: `cam.mesh.dropcutter`). The ball is swept along the parsed program (the capsules of `cam.gcode.sweep`).
 Nothing here imports the planner.
 """
 

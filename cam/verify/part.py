@@ -1,10 +1,10 @@
 """What the programs leave on the part itself: measured on samples of `mesh.ply`, from the G-code alone.
 
 Every program's moves are re-derived from its text (ball centre = tip + r·Z in its setup's frame). The
-part is sampled evenly; a sample is reachable by a ball when, in some setup, its normal does not face
-below the horizontal, the ball touching it (centre r along its normal) contains no sample of the part,
-nothing of the part stands in the cylinder above that centre, and the centre is not below the table (the
-part's lowest point) plus r. For every sample the
+part is sampled evenly; a sample is reachable by a ball when, in some setup, the ball touching it (centre
+r along its normal, held REACH_TOL_MM off) can be lowered along the tool axis onto that centre without
+meeting any triangle of the part first (an exact drop-cutter against `mesh.ply`), and the centre is not
+below the table (the part's lowest point) plus r. For every sample the
 normal line meets the swept capsules of the cutting moves: the first entry above the surface is the
 material left there; a sample inside a capsule is cut into by its depth in it. Rapid moves are checked
 against a ball grown by the rapid margin. A sample is finished when some program leaves at most the target
@@ -22,14 +22,14 @@ from cam import CheckCancel
 from cam.gcode.parser import ParsedProgram
 from cam.gcode.setup import Setup
 from cam.gcode.sweep import Sweep
+from cam.mesh.dropcutter import drop_ball, drop_index
 from cam.mesh.samples import SurfaceSamples, sample_surface
-from cam.verify.solid import SampleSolid
 
 __all__ = ["PartMeasurement", "ProgramIn", "REACH_TOL_MM", "measure_part", "vertex_values"]
 
-#: A ball within this of the part's samples counts as touching it, not cutting it (the samples lie on the
-#: part's facets: between them the ball meets the part at most the sagitta of their spacing deeper).
-REACH_TOL_MM = 0.01
+#: The ball held this far off a sample counts as touching it (a ball touching a wall touches the wall's
+#: top edge too; whether that blocks it would otherwise be round-off).
+REACH_TOL_MM = 2e-3
 
 
 @dataclass(frozen=True)
@@ -67,13 +67,16 @@ def _frame(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndarra
     return samples.points @ setup.rotation.T + setup.translation, samples.normals @ setup.rotation.T
 
 
-def _reach(samples: SurfaceSamples, setups: list[Setup], r: float, cell: float) -> np.ndarray:
-    """bool (k,): reached by a ball of radius r from some setup."""
+def _reach(vertices: np.ndarray, faces: np.ndarray, samples: SurfaceSamples, setups: list[Setup],
+           r: float) -> np.ndarray:
+    """bool (k,): reached by a ball of radius r from some setup (drop-cutter against the part's triangles)."""
     out = np.zeros(len(samples.area), dtype=bool)
     for setup in setups:
         p, n = _frame(samples, setup)
-        solid = SampleSolid(p, r=r, cell=cell, tol=REACH_TOL_MM, floor_z=float(p[:, 2].min()))
-        out |= solid.reachable(p, n, lift_mm=REACH_TOL_MM, min_normal_z=-1e-3)
+        V = np.asarray(vertices, dtype=np.float64) @ setup.rotation.T + setup.translation
+        centre = p + (r + REACH_TOL_MM) * n
+        lowest = drop_ball(drop_index(V, faces, radius_mm=r), centre[:, :2])
+        out |= (lowest <= centre[:, 2] + REACH_TOL_MM) & (centre[:, 2] - r >= float(V[:, 2].min()) - REACH_TOL_MM)
     return out
 
 
@@ -124,8 +127,8 @@ def measure_part(vertices: np.ndarray, faces: np.ndarray, programs: list[Program
     check_cancel = check_cancel or (lambda: None)
     samples = sample_surface(vertices, faces, spacing_mm=spacing_mm)
     area, total = samples.area, float(samples.area.sum())
-    reach_main = _reach(samples, setups, tool_radius_mm, cell=spacing_mm)
-    reach_rest = _reach(samples, setups, rest_radius_mm, cell=spacing_mm) if rest_radius_mm else None
+    reach_main = _reach(vertices, faces, samples, setups, tool_radius_mm)
+    reach_rest = _reach(vertices, faces, samples, setups, rest_radius_mm) if rest_radius_mm else None
     left = np.full(len(area), np.inf)
     per_program, gouge, rapid_gouge = [], 0.0, 0.0
     measured_to = max(4 * target_mm, 0.25 * tool_radius_mm)
