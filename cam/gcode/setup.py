@@ -47,3 +47,20 @@ class Setup:
             Part-frame point in mm.
         """
         return self.rotation.T @ (np.asarray(point, dtype=np.float64) - self.translation)
+
+    def to_machine(self, points: np.ndarray, *, direction: bool = False) -> np.ndarray:
+        """Machine-frame coordinates of part-frame points (or, with `direction`, of vectors: no translation).
+
+        Parameters
+        ----------
+        points : (..., 3) array_like of float
+            Part-frame points in mm (or unit vectors).
+        direction : bool
+            Rotate only (normals, axes).
+
+        Returns
+        -------
+        (..., 3) float64
+        """
+        out = np.asarray(points, dtype=np.float64) @ self.rotation.T
+        return out if direction else out + self.translation

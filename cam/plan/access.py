@@ -65,7 +65,7 @@ def opposite_setup(setup: Setup, surfaces: list[BSplineSurface], *, new_id: int)
     flip = np.diag([1.0, -1.0, -1.0])
     rot = flip @ setup.rotation
     pts = np.concatenate([s.control_points.reshape(-1, 3) for s in surfaces])
-    m1 = pts @ setup.rotation.T + setup.translation
+    m1 = setup.to_machine(pts)
     m2 = pts @ rot.T
     shift = np.array([*(m1[:, :2].mean(0) - m2[:, :2].mean(0)), m1[:, 2].min() - m2[:, 2].min()])
     return Setup(id=new_id, rotation=rot, translation=shift)

@@ -122,7 +122,7 @@ class _Passes:
 
 
 def _machine(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndarray]:
-    return samples.points @ setup.rotation.T + setup.translation, samples.normals @ setup.rotation.T
+    return setup.to_machine(samples.points), setup.to_machine(samples.normals, direction=True)
 
 
 def _patch_passes(surfaces: SurfacesIn | None, setups: list[Setup], parts: list[SetupPart], tool: ToolParams,
@@ -266,12 +266,12 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
                                  check_cancel=check_cancel)
     reach_main = choice.any()
     finished = left <= h
-    top_z = [float((vertices @ s.rotation.T + s.translation)[:, 2].max()) for s in choice.setups]
+    top_z = [float(s.to_machine(vertices)[:, 2].max()) for s in choice.setups]
     programs = [_program(part, passes[k], program_name(k), "main", toolpath, top_z=top_z[k],
                          bound_mm=float(np.max(left[finished & choice.reach[k]], initial=0.0)), stats=stats[k])
                 for k, part in enumerate(parts)]
     rest_left, rest_programs = _rest(vertices, faces, samples, choice.setups, left, tool, toolpath, h=h,
-                                     chord_mm=chord_mm, top_z=top_z, progress=progress_between(progress, 0.8, 0.97),
+                                     scallop_mm=scallop_mm, chord_mm=chord_mm, top_z=top_z, progress=progress_between(progress, 0.8, 0.97),
                                      check_cancel=check_cancel)
     coverage = _coverage(samples, reach_main, left, rest_left, h)
     progress(0.98, "linked")
@@ -281,15 +281,14 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
 
 
 def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: np.ndarray, tool: ToolParams,
-          toolpath: ToolpathParams, *, h: float, chord_mm: float, top_z: list[float], progress, check_cancel
-          ) -> tuple[np.ndarray | None, list[ProgramPlan]]:
+          toolpath: ToolpathParams, *, h: float, scallop_mm: float, chord_mm: float, top_z: list[float],
+          progress, check_cancel) -> tuple[np.ndarray | None, list[ProgramPlan]]:
     """The rest ball's programs for what the main ball leaves over the target; None without a rest ball."""
     if tool.rest_radius_mm is None:
         return None, []
     r2 = float(tool.rest_radius_mm)
     if not h < r2:
         raise GeometryError(f"the scallop height {h} mm must be below tool.rest_radius_mm = {r2} mm")
-    scallop2 = (1 - toolpath.chord_fraction) * h - ROUNDING_MM
     rest_left = np.where(left <= h, left, np.inf)
     programs = []
     for k, setup in enumerate(setups):
@@ -297,7 +296,7 @@ def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: n
         points, normals = _machine(samples, setup)
         target = ~(rest_left <= h) & part.reaches(points, normals)
         progress(k / len(setups), f"setup {k + 1}: rest ball")
-        done = finish_setup(part, points[target], normals[target], scallop_mm=scallop2, chord_mm=chord_mm,
+        done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
                             target_mm=h, check_cancel=check_cancel)
         rest_left[target] = np.minimum(rest_left[target], done.left)
         finished = target.copy()

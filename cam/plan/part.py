@@ -113,7 +113,7 @@ def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_ra
     -------
     SetupPart
     """
-    V = np.asarray(vertices, dtype=np.float64) @ setup.rotation.T + setup.translation
+    V = setup.to_machine(vertices)
     F = np.asarray(faces, dtype=np.int64)
     # Every triangle, not only those facing the tool (enough for a valid solid): a reconstructed mesh can
     # fold over itself, and the README example's did, where a down-facing triangle is met first.

@@ -90,7 +90,7 @@ def reachable(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, 
     (k,) bool
     """
     part = setup_part(vertices, faces, setup, tool_radius_mm=tool_radius_mm)
-    return part.reaches(samples.points @ setup.rotation.T + setup.translation, samples.normals @ setup.rotation.T)
+    return part.reaches(setup.to_machine(samples.points), setup.to_machine(samples.normals, direction=True))
 
 
 def _candidate_axes(normals: np.ndarray, area: np.ndarray, given: list[Setup], rng: np.random.Generator,

@@ -64,7 +64,7 @@ class PartMeasurement:
 
 
 def _frame(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndarray]:
-    return samples.points @ setup.rotation.T + setup.translation, samples.normals @ setup.rotation.T
+    return setup.to_machine(samples.points), setup.to_machine(samples.normals, direction=True)
 
 
 def _reach(vertices: np.ndarray, faces: np.ndarray, samples: SurfaceSamples, setups: list[Setup],
@@ -73,7 +73,7 @@ def _reach(vertices: np.ndarray, faces: np.ndarray, samples: SurfaceSamples, set
     out = np.zeros(len(samples.area), dtype=bool)
     for setup in setups:
         p, n = _frame(samples, setup)
-        V = np.asarray(vertices, dtype=np.float64) @ setup.rotation.T + setup.translation
+        V = setup.to_machine(vertices)
         centre = p + (r + REACH_TOL_MM) * n
         lowest = drop_ball(drop_index(V, faces, radius_mm=r), centre[:, :2])
         out |= (lowest <= centre[:, 2] + REACH_TOL_MM) & (centre[:, 2] - r >= float(V[:, 2].min()) - REACH_TOL_MM)
