@@ -1,0 +1,182 @@
+"""Compiled inner loops of the ball drop-cutter (`dropcutter.drop_ball`, `dropcutter.surface_height`).
+
+One query at a time over the triangles bucketed in its cell, in bucket order: bounds first, the most
+promising triangles exactly, then only the triangles whose bound beats the best so far. The arithmetic is
+the closed forms of `dropcutter`'s docstring, written operation for operation as the earlier vectorised
+code wrote them (no fused multiply-add, no reassociation), and ties go the way that code sent them, so the
+heights and contact points are bit for bit what it gave.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["drop_queries", "surface_queries"]
+
+# numba's own thread pool: fork-safe (Celery's prefork children, QuadriFlow's child), but not safe to enter
+# from two Python threads at once, hence the lock around every parallel call.
+numba.config.THREADING_LAYER = "workqueue"
+_LOCK = threading.Lock()
+
+
+@njit(cache=True, inline="always")
+def _vertex(qx, qy, t, r):
+    best, k_best = -np.inf, 0
+    for k in range(3):
+        dx, dy = t[k, 0] - qx, t[k, 1] - qy
+        d2 = dx * dx + dy * dy
+        z = t[k, 2] + math.sqrt(max(r * r - d2, 0.0)) if d2 <= r * r else -np.inf
+        if z > best:
+            best, k_best = z, k
+    return best, t[k_best, 0], t[k_best, 1], t[k_best, 2]
+
+
+@njit(cache=True, inline="always")
+def _edges(qx, qy, t, r):
+    best, px, py, pz = -np.inf, 0.0, 0.0, 0.0
+    for a in range(3):
+        b = (a + 1) % 3
+        dx, dy = t[b, 0] - t[a, 0], t[b, 1] - t[a, 1]
+        length = math.sqrt(dx * dx + dy * dy)
+        if not length > 1e-12:
+            continue
+        ux, uy = dx / length, dy / length
+        rx, ry = qx - t[a, 0], qy - t[a, 1]
+        s_q = rx * ux + ry * uy
+        d = abs(rx * uy - ry * ux)
+        if not d <= r:
+            continue
+        rho = math.sqrt(max(r * r - d * d, 0.0))
+        m = (t[b, 2] - t[a, 2]) / length
+        root = math.sqrt(1.0 + m * m)
+        sigma = m * rho / root
+        s = (sigma + s_q) / length
+        if not (s >= 0.0 and s <= 1.0):
+            continue
+        z = t[a, 2] + m * s_q + rho * root
+        if z > best:
+            best = z
+            px = t[a, 0] + s * (t[b, 0] - t[a, 0])
+            py = t[a, 1] + s * (t[b, 1] - t[a, 1])
+            pz = t[a, 2] + s * (t[b, 2] - t[a, 2])
+    return best, px, py, pz
+
+
+@njit(cache=True, inline="always")
+def _facet(qx, qy, t, n, r):
+    up = n[2] > 1e-12
+    nz = n[2] if up else 1.0
+    px, py = qx - r * n[0], qy - r * n[1]
+    v0x, v0y = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1]
+    v1x, v1y = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1]
+    v2x, v2y = px - t[0, 0], py - t[0, 1]
+    den = v0x * v1y - v0y * v1x
+    if not abs(den) > 1e-300:
+        den = np.inf
+    s = (v2x * v1y - v2y * v1x) / den
+    u = (v0x * v2y - v0y * v2x) / den
+    plane_z = t[0, 2] - (n[0] * (px - t[0, 0]) + n[1] * (py - t[0, 1])) / nz
+    inside = up and s >= 0 and u >= 0 and s + u <= 1
+    return (plane_z + r * n[2] if inside else -np.inf), px, py, plane_z
+
+
+@njit(cache=True)
+def _exact(qx, qy, t, n, r, out):
+    """Highest contact of the ball over (qx, qy) with one triangle: out[:] = centre z, contact x, y, z."""
+    z, x, y, w = _vertex(qx, qy, t, r)
+    ze, xe, ye, we = _edges(qx, qy, t, r)
+    if ze > z:
+        z, x, y, w = ze, xe, ye, we
+    zf, xf, yf, wf = _facet(qx, qy, t, n, r)
+    if zf > z:
+        z, x, y, w = zf, xf, yf, wf
+    out[0], out[1], out[2], out[3] = z, x, y, w
+
+
+@njit(cache=True, parallel=True)
+def _drop_queries(xy, triangles, normals, top, lo, hi, r, origin, cell, shape, starts, members, z_out, p_out):
+    """Fill z_out (n,) and p_out (n, 3) with the drop-cutter height and contact over each xy (n, 2)."""
+    nx, ny = shape[0], shape[1]
+    for i in prange(xy.shape[0]):
+        qx, qy = xy[i, 0], xy[i, 1]
+        if not (math.isfinite(qx) and math.isfinite(qy)):
+            continue
+        ci = math.floor((qx - origin[0]) / cell)
+        cj = math.floor((qy - origin[1]) / cell)
+        if not (0 <= ci < nx and 0 <= cj < ny):
+            continue
+        c = int(ci) * ny + int(cj)
+        first, last = starts[c], starts[c + 1]
+        bounds = np.empty(last - first)
+        top_bound = -np.inf
+        for k in range(first, last):
+            tri = members[k]
+            gx = max(max(lo[tri, 0] - qx, qx - hi[tri, 0]), 0.0)
+            gy = max(max(lo[tri, 1] - qy, qy - hi[tri, 1]), 0.0)
+            d2 = gx * gx + gy * gy
+            bound = top[tri] + math.sqrt(r * r - d2) if d2 <= r * r else np.nan
+            bounds[k - first] = bound
+            if bound > top_bound:  # noqa: PLR1730 — NaN (out of reach) must never win
+                top_bound = bound
+        if top_bound == -np.inf or np.isnan(top_bound):
+            continue
+        best = np.full(4, np.nan)
+        best[0] = -np.inf
+        cand = np.empty(4)
+        found = False
+        # The most promising triangles first (ties: the later one wins), then those that may still beat them.
+        for k in range(first, last):
+            if bounds[k - first] == top_bound:
+                _exact(qx, qy, triangles[members[k]], normals[members[k]], r, cand)
+                if cand[0] >= best[0]:
+                    best[:] = cand
+                    found = True
+        guess = best[0]
+        for k in range(first, last):
+            bound = bounds[k - first]
+            if bound > guess and bound != top_bound:
+                _exact(qx, qy, triangles[members[k]], normals[members[k]], r, cand)
+                if cand[0] >= best[0]:
+                    best[:] = cand
+        if found:
+            z_out[i] = best[0]
+            if np.isfinite(best[0]):
+                p_out[i, 0], p_out[i, 1], p_out[i, 2] = best[1], best[2], best[3]
+
+
+@njit(cache=True, parallel=True)
+def _surface_queries(xy, triangles, normals, lo, hi, origin, cell, shape, starts, members, z_out):
+    """Fill z_out (n,) with the highest facet height over each xy (n, 2) (-inf where none)."""
+    nx, ny = shape[0], shape[1]
+    for i in prange(xy.shape[0]):
+        qx, qy = xy[i, 0], xy[i, 1]
+        if not (math.isfinite(qx) and math.isfinite(qy)):
+            continue
+        ci = math.floor((qx - origin[0]) / cell)
+        cj = math.floor((qy - origin[1]) / cell)
+        if not (0 <= ci < nx and 0 <= cj < ny):
+            continue
+        c = int(ci) * ny + int(cj)
+        for k in range(starts[c], starts[c + 1]):
+            tri = members[k]
+            if lo[tri, 0] <= qx <= hi[tri, 0] and lo[tri, 1] <= qy <= hi[tri, 1]:
+                z, _, _, _ = _facet(qx, qy, triangles[tri], normals[tri], 0.0)
+                if z > z_out[i]:  # noqa: PLR1730 — as the bound above
+                    z_out[i] = z
+
+
+def drop_queries(*args) -> None:
+    """`_drop_queries` under the pool's lock (arguments as there)."""
+    with _LOCK:
+        _drop_queries(*args)
+
+
+def surface_queries(*args) -> None:
+    """`_surface_queries` under the pool's lock (arguments as there)."""
+    with _LOCK:
+        _surface_queries(*args)
