@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import os
 from pathlib import Path
 
 from pydantic import AliasChoices, Field
@@ -73,6 +74,12 @@ class Settings(BaseSettings):
         default=1, ge=1,
         validation_alias=AliasChoices("CLOUD2CNC_BLAS_THREADS", "blas_threads"),
     )
+    stage_processes: int = Field(
+        default=0, ge=0,
+        validation_alias=AliasChoices("CLOUD2CNC_STAGE_PROCESSES", "stage_processes"),
+        description="Processes a stage forks for its independent pieces (fit's patches); 0: the CPUs the "
+                    "worker may use, shared among its concurrent tasks (`CLOUD2CNC_CONCURRENCY`).",
+    )
     stage_plugins: str = Field(
         default="",
         validation_alias=AliasChoices("CLOUD2CNC_STAGE_PLUGINS", "stage_plugins"),
@@ -116,3 +123,12 @@ class Settings(BaseSettings):
 def get_settings() -> Settings:
     """The process-wide settings; tests clear the cache after changing the environment."""
     return Settings()
+
+
+def stage_processes(configured: int | None) -> int:
+    """Processes one stage may fork: `configured` when set (> 0), else the CPUs this process may run on,
+    divided among the worker's concurrent tasks."""
+    if configured:
+        return int(configured)
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cpus // max(1, int(os.environ.get("CLOUD2CNC_CONCURRENCY", "1") or 1)))

@@ -89,6 +89,7 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("quads.obj", "patches.json", "mesh.ply"),
         outputs=("surfaces.json", "surfaces.igs"),
         param_groups=("fit",),  # with its tolerance resolved (JobParams.effective)
+        settings=("stage_processes",),
         time_limit_s=1800.0,
     ),
     StageSpec(

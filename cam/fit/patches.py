@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam import CheckCancel, GeometryError, Progress
+from cam import CheckCancel, GeometryError, Progress, map_forked
 from cam.fit.borders import find_kinks, fit_boundary_curves, seed_bordered_net
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_vertices
 from cam.fit.crease import edge_keys, is_sharp_polyline, vertex_positions
@@ -45,7 +45,8 @@ __all__ = ["PatchFit", "FitResult", "fit_patches"]
 
 def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
                 params: FitParams, *, other_quads: np.ndarray | None = None, sharp_edges: np.ndarray | None = None,
-                progress: Progress | None = None, check_cancel: CheckCancel | None = None) -> FitResult:
+                processes: int = 1, progress: Progress | None = None, check_cancel: CheckCancel | None = None
+                ) -> FitResult:
     """Bicubic B-spline surfaces for patches of a quad mesh, fitted to a triangle mesh, C0 where they meet.
 
     Parameters
@@ -74,6 +75,9 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         Quad-mesh vertex pairs on sharp edges; patch borders along them are moved onto the mesh's
         creases (edges sharper than `params.crease_angle_deg`) found within
         `params.snap_radius_quads` quad edges.
+    processes : int
+        Patches fitted at once, in forked processes (`cam.map_forked`); the surfaces are bit for bit those
+        of one process.
     progress : callable or None
         progress(fraction, message=None), called between patches.
     check_cancel : callable or None
@@ -94,7 +98,7 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         For arguments no caller should pass (shapes, ids, an unresolved tolerance).
     """
     return _fit_patches(vertices, grids, mesh_vertices, mesh_faces, params, other_quads=other_quads,
-                        sharp_edges=sharp_edges, progress=progress, check_cancel=check_cancel)
+                        sharp_edges=sharp_edges, processes=processes, progress=progress, check_cancel=check_cancel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,7 +134,7 @@ class _Problem:
 
 def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
                  params: FitParams, *, other_quads: np.ndarray | None = None, sharp_edges: np.ndarray | None = None,
-                 progress: Progress | None = None, check_cancel: CheckCancel | None = None,
+                 processes: int = 1, progress: Progress | None = None, check_cancel: CheckCancel | None = None,
                  smoothing_floor: float = 1e-6, param_weight: float = 0.01, anchor_weight: float = 1.0,
                  min_span_quads: float = 0.125, kink_angle_deg: float = 30.0, mesh_weight: float = 1.0) -> FitResult:
     """`fit_patches` with the fit's inner weights open to change (tests and benches; no user sets them).
@@ -151,21 +155,22 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
                     normal_weight_mm=params.normal_weight_mm, anchor_weight=anchor_weight,
                     iterations=params.iterations, mesh=problem.index if mesh_weight > 0 else None,
                     mesh_weight=mesh_weight, check_cancel=cancel)
-    free = _fit_free(problem, fit_opts, report, cancel)
+    each = _Each(processes=processes, report=report, cancel=cancel)
+    free = _fit_free(problem, fit_opts, each)
     # The constrained fits start from the first free fits, before refinement (and before samples
     # moved: they refit from the top anyway): knot lines run across the whole patch, and the spans a
     # free fit split for one border would free every row and column to follow the mesh's facets
     # (ripples no tolerance sees, concave tighter than the ball). They refine themselves where they
     # need it.
     coarse = [f.unrefined for f in free]
-    free = _refit_moved(problem, free, fit_opts, cancel)
+    free = _refit_moved(problem, free, fit_opts, each)
     report(0.4, "fitting the shared boundary curves")
     curves, curve_err = fit_boundary_curves(
         problem.layout, problem.shape, [f.fit for f in free], problem.positions, problem.index, problem.creases,
         problem.sharp, knot_spacing_quads=params.knot_spacing_quads, tolerance_mm=params.tolerance_mm,
         max_refinements=params.max_refinements, min_span_quads=min_span_quads, kink_angle_deg=kink_angle_deg,
         check_cancel=cancel)
-    final = _fit_bordered(problem, coarse, curves, fit_opts, report, cancel)
+    final = _fit_bordered(problem, coarse, curves, fit_opts, each)
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
                            params.tolerance_mm, check_cancel=cancel)
@@ -273,45 +278,57 @@ def _fit_free_patch(problem: _Problem, k: int, start: SurfaceFit | None, fit_opt
                        pull_sides=problem.pull[k], **kw, **fit_opts)
 
 
-def _fit_free(problem: _Problem, fit_opts: dict, report: Progress, cancel: CheckCancel) -> list[Refined]:
+@dataclass(frozen=True)
+class _Each:
+    """How the per-patch loops run: `processes` patches at once, reporting and checking for cancel."""
+
+    processes: int
+    report: Progress
+    cancel: CheckCancel
+
+    def map(self, fit_one, ks: list[int], start: float, end: float, message: str) -> list[Refined]:
+        """[fit_one(k, check_cancel) for k in ks], progress from `start` to `end` with `message` % (done, total)."""
+
+        def progress(fraction: float, _message: str | None = None) -> None:
+            self.report(start + (end - start) * fraction, message % (round(fraction * len(ks)), len(ks)))
+
+        return map_forked(lambda i, cc: fit_one(ks[i], cc), len(ks), processes=self.processes,
+                          check_cancel=self.cancel, progress=progress)
+
+
+def _fit_free(problem: _Problem, fit_opts: dict, each: _Each) -> list[Refined]:
     """Every patch fitted on its own (free fits, refined for their borders, where the curves are fitted)."""
-    n = len(problem.grids)
-    free: list[Refined] = []
-    for k in range(n):
-        cancel()
-        free.append(_fit_free_patch(problem, k, None, fit_opts))
-        report(0.35 * (k + 1) / n, f"fitted patch {k + 1} of {n} on its own")
-    return free
+    return each.map(lambda k, cc: _fit_free_patch(problem, k, None, {**fit_opts, "check_cancel": cc}),
+                    list(range(len(problem.grids))), 0.0, 0.35, "fitted %d of %d patches on their own")
 
 
-def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, cancel: CheckCancel) -> list[Refined]:
+def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, each: _Each) -> list[Refined]:
     """The free fits, with those whose samples moved to or from a neighbour fitted again from where they were."""
-    moved = _reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free], problem.layout,
-                      fit_opts["tolerance_mm"], check_cancel=cancel)
+    moved = sorted(_reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free],
+                             problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel))
+    refits = each.map(lambda k, cc: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "check_cancel": cc}),
+                      moved, 0.35, 0.4, "fitted %d of %d patches again after samples moved")
     free = list(free)
-    for k in sorted(moved):
-        cancel()
-        free[k] = _fit_free_patch(problem, k, free[k].fit, fit_opts)
+    for k, fit in zip(moved, refits):
+        free[k] = fit
     return free
 
 
-def _fit_bordered(problem: _Problem, coarse: list[SurfaceFit], curves: list[CurveFit], fit_opts: dict, report: Progress,
-                  cancel: CheckCancel) -> list[Refined]:
+def _fit_bordered(problem: _Problem, coarse: list[SurfaceFit], curves: list[CurveFit], fit_opts: dict,
+                  each: _Each) -> list[Refined]:
     """Every patch fitted again inside its border rows, taken from the boundary curves and held fixed."""
-    n = len(problem.grids)
-    final: list[Refined] = []
-    for k in range(n):
-        cancel()
+
+    def fit_one(k: int, cc: CheckCancel) -> Refined:
         ku, kv, cp = seed_bordered_net(k, problem.layout, coarse[k], curves)
         pts, nrm, u, v = _patch_data(problem, k)
         # The final surfaces are drawn onto the mesh on a lattice an eighth of a quad apart, the free
         # fits on a quarter: between a quarter's points a refined surface still rippled past the
         # tolerance (a bump's fit, 0.03204 mm), and the free fits only place the borders.
-        final.append(fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
-                                 lengths_mm=problem.lengths[k], anchors=problem.anchors[k], mesh_spacing=0.125,
-                                 mesh_edges=True, **fit_opts))
-        report(0.4 + 0.5 * (k + 1) / n, f"fitted patch {k + 1} of {n} to its shared borders")
-    return final
+        return fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
+                           lengths_mm=problem.lengths[k], anchors=problem.anchors[k], mesh_spacing=0.125,
+                           mesh_edges=True, **{**fit_opts, "check_cancel": cc})
+
+    return each.map(fit_one, list(range(len(problem.grids))), 0.4, 0.9, "fitted %d of %d patches to their shared borders")
 
 
 def _lengths(V: np.ndarray, g: np.ndarray) -> tuple[float, float]:

@@ -419,3 +419,15 @@ def test_inside_fixed_borders_a_surface_past_a_crease_is_drawn_back_onto_it():
     assert ok2.all()
     np.testing.assert_allclose(normal2[on_ridge], [[0.0, 0.0, 1.0]] * int(on_ridge.sum()), atol=1e-12)
     np.testing.assert_array_equal(normal2[~on_ridge], normal[~on_ridge])
+
+
+def test_patches_fitted_in_two_processes_are_bit_for_bit_those_of_one():
+    V, ids, MV, MF = case(_bent, (8, 6), (8, 6))
+    grids = [ids[:, :4], ids[:, 3:]]
+    one = fit_patches(V, grids, MV, MF, fit_params())
+    two = fit_patches(V, grids, MV, MF, fit_params(), processes=2)
+    for a, b in zip(one.patches, two.patches, strict=True):
+        assert np.array_equal(a.surface.control_points, b.surface.control_points)
+        assert np.array_equal(a.surface.knots_u, b.surface.knots_u) and np.array_equal(a.surface.knots_v, b.surface.knots_v)
+        assert (a.max_error_mm, a.mean_error_mm, a.refinements) == (b.max_error_mm, b.mean_error_mm, b.refinements)
+    assert one.max_gap_mm == two.max_gap_mm

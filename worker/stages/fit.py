@@ -13,6 +13,7 @@ from cam.fit.patches import FitResult, fit_patches
 from cam.io import read_json, read_ply, write_json
 from cam.io.iges import write_iges
 from cam.io.quads import read_quad_obj
+from core.config import stage_processes
 from worker.context import StageContext, StageError, StageSkipped
 
 
@@ -52,7 +53,8 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     ctx.check_cancel()
     try:
         result = fit_patches(vertices, grids, mesh.points, mesh.faces, params, other_quads=quads[~in_patch],
-                             sharp_edges=sharp_edges, progress=ctx.progress_between(0.05, 0.9),
+                             sharp_edges=sharp_edges, processes=stage_processes(ctx.settings.get("stage_processes")),
+                             progress=ctx.progress_between(0.05, 0.9),
                              check_cancel=ctx.check_cancel)
     except GeometryError as exc:
         raise StageSkipped(f"the patches cannot be fitted ({exc}); plan finishes the part from mesh.ply without "
