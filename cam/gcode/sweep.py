@@ -3,14 +3,16 @@
 A straight move of the ball centre from A to B sweeps a capsule (a cylinder of radius r around AB
 capped by the two balls). A line p + t·n meets a capsule, which is convex, in one interval
 [t_in, t_out]: the hull of its intervals with the two balls and with the cylinder clipped to the
-slab between A and B. Pairs of lines and capsules come from a KD-tree over points spread along the
-moves, so only capsules that can reach a line within the asked range are evaluated.
+slab between A and B. The capsules near a line are found through points spread along the moves (a
+grid of them, in compiled code: `_sweepkernel`), so only capsules that can reach a line within the asked
+range are evaluated.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from cam.gcode._sweepkernel import probe_sweep
 
 __all__ = ["Sweep", "capsule_intervals"]
 
@@ -94,7 +96,7 @@ class Sweep:
     r : float
         Ball radius, mm.
     step : float
-        Spacing of the points spread along each move for the KD-tree, mm.
+        Spacing of the points spread along each move to find the moves near a point, mm.
 
     Attributes
     ----------
@@ -104,10 +106,10 @@ class Sweep:
         Ball radius, mm.
     step : float
         Spacing of the spread points, mm.
+    spread : (K, 3) float64
+        Points along the moves, at most `step` apart, ends included, mm.
     owner : (K,) int64
         The move of each spread point.
-    tree : cKDTree or None
-        KD-tree over the spread points; None when there is no move.
     """
 
     def __init__(self, a: np.ndarray, b: np.ndarray, r: float, *, step: float):
@@ -116,37 +118,15 @@ class Sweep:
         self.owner = np.repeat(np.arange(len(self.a)), k + 1)
         offsets = np.concatenate([[0], np.cumsum(k + 1)[:-1]]) if len(k) else np.zeros(0, np.int64)
         t = (np.arange(len(self.owner)) - np.repeat(offsets, k + 1)) / np.repeat(k, k + 1)
-        spread = self.a[self.owner] + t[:, None] * (self.b - self.a)[self.owner]
-        self.tree = cKDTree(spread) if len(spread) else None
+        self.spread = self.a[self.owner] + t[:, None] * (self.b - self.a)[self.owner]
 
-    def pairs(self, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-        """(point index, move index) pairs whose capsule axis passes within `reach` of the point (a superset).
-
-        Parameters
-        ----------
-        points : (k, 3) float
-            The points, mm.
-        reach : float
-            Distance from a capsule's axis, mm.
-
-        Returns
-        -------
-        point, move : (q,) int64
-            The pairs, sorted by point, each once.
-        """
-        if self.tree is None or not len(points):
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        near = cKDTree(points).sparse_distance_matrix(self.tree, reach + 0.5 * self.step, output_type="coo_matrix")
-        m = len(self.a)
-        key = near.row.astype(np.int64) * m + self.owner[near.col]
-        key.sort()
-        key = key[np.concatenate([[True], key[1:] != key[:-1]])] if len(key) else key
-        return key // m, key % m
-
-    def probe(self, p: np.ndarray, n: np.ndarray, reach: float, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+    def probe(self, p: np.ndarray, n: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
         """Per point p with outward unit normal n (float (k, 3)): the material left along n (first entry into
         the swept volume, +inf when none within `reach`) and the overcut (≥ 0: how deep p lies inside the
         swept volume), both mm.
+
+        Every capsule whose axis passes within r + reach of the point is measured: its axis then passes
+        within step / 2 of a spread point, so one lies within r + reach + step / 2 of the point.
 
         Parameters
         ----------
@@ -156,36 +136,17 @@ class Sweep:
             Their outward unit normals.
         reach : float
             Largest material measured, mm; farther entries count as none.
-        chunk : int
-            Points handled at a time.
 
         Returns
         -------
         scallop : (k,) float64
             Material left along n, mm (0 where p lies inside a capsule), +inf when none within `reach`.
         gouge : (k,) float64
-            Overcut, mm: r minus p's distance to the nearest capsule axis, ≥ 0.
+            Overcut, mm: r minus p's distance to the nearest capsule axis, ≥ 0. (The normal line's own
+            depth overstates it wherever the line meets the capsule obliquely, e.g. a ball cutting the far
+            face of a sharp edge next to the point.)
         """
-        scallop = np.full(len(p), np.inf)
-        gouge = np.zeros(len(p))
-        for s in range(0, len(p), chunk):
-            e = min(s + chunk, len(p))
-            i, j = self.pairs(p[s:e], self.r + reach)
-            if not len(i):
-                continue
-            # A capsule whose axis is farther than r + reach from the point cannot be entered within reach.
-            dist = _segment_distance(p[s:e][i], self.a[j], self.b[j])
-            near = dist <= self.r + reach
-            i, j, dist = i[near], j[near], dist[near]
-            t_in, t_out = capsule_intervals(p[s:e][i], n[s:e][i], self.a[j], self.b[j], self.r)
-            hit = (t_in <= t_out) & (t_out >= 0)
-            sc = np.full(e - s, np.inf)
-            np.minimum.at(sc, i, np.where(hit, np.maximum(t_in, 0.0), np.inf))
-            scallop[s:e] = np.where(sc <= reach, sc, np.inf)
-            # The overcut is how deep the surface point lies inside the capsule: r minus its distance to
-            # the axis. The normal line's own depth (-t_in) overstates it wherever the line meets the
-            # capsule obliquely, e.g. a ball cutting the far face of a sharp edge next to the point.
-            g = np.zeros(e - s)
-            np.maximum.at(g, i, np.maximum(self.r - dist, 0.0))
-            gouge[s:e] = g
-        return scallop, gouge
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        n = np.asarray(n, dtype=np.float64).reshape(-1, 3)
+        return probe_sweep(p, n, self.a, self.b, self.r, reach, self.spread, self.owner,
+                           radius=self.r + reach + 0.5 * self.step)
