@@ -98,6 +98,7 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("mesh.ply", "surfaces.json", "setup.json"),
         outputs=("toolpath.json", "toolpath.csv", "setup.json") + PROGRAMS,
         param_groups=("tool", "toolpath"),
+        settings=("stage_processes",),
         time_limit_s=1800.0,
     ),
     StageSpec(

@@ -126,14 +126,16 @@ def _machine(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndar
 
 
 def _patch_passes(surfaces: SurfacesIn | None, setups: list[Setup], parts: list[SetupPart], tool: ToolParams,
-                  toolpath: ToolpathParams, *, chord_mm: float, check_cancel) -> tuple[PatchesPlan | None, list]:
+                  toolpath: ToolpathParams, *, chord_mm: float, processes: int, check_cancel
+                  ) -> tuple[PatchesPlan | None, list]:
     """The patch passes per setup, lifted onto the mesh's drop-cutter height and refined against it."""
     out = [_Passes() for _ in setups]
     if surfaces is None or not toolpath.patch_passes or not surfaces.good.any():
         return None, out
     keep = np.flatnonzero(surfaces.good)
     plan = plan_patches([surfaces.ids[k] for k in keep], [surfaces.surfaces[k] for k in keep], setups, tool,
-                        toolpath, signs=surfaces.signs[keep], add_setups=False, check_cancel=check_cancel)
+                        toolpath, signs=surfaces.signs[keep], add_setups=False, processes=processes,
+                        check_cancel=check_cancel)
     by_id = {s.id: k for k, s in enumerate(setups)}
     for sp in plan.setups:
         k = by_id[sp.setup.id]
@@ -214,8 +216,8 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
 
 
 def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath: ToolpathParams, *,
-             surfaces: SurfacesIn | None = None, given_setups: list[Setup] = (), progress: Progress | None = None,
-             check_cancel: CheckCancel | None = None) -> JobPlan:
+             surfaces: SurfacesIn | None = None, given_setups: list[Setup] = (), processes: int = 1,
+             progress: Progress | None = None, check_cancel: CheckCancel | None = None) -> JobPlan:
     """Programs that finish every surface of the part the ball reaches, within the scallop height.
 
     Parameters
@@ -228,6 +230,8 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
         The fitted patches, for the patch passes; None when the job has none.
     given_setups : list of Setup
         Setups to consider first (segment's).
+    processes : int
+        Patches planned at once, in forked processes (`cam.map_forked`; the programs are the same).
     progress, check_cancel : callable, optional
         cam's callbacks (see `cam`).
 
@@ -259,7 +263,7 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     parts = [setup_part(vertices, faces, s, tool_radius_mm=r) for s in choice.setups]
     progress(0.05, "patch passes")
     patch_plan, passes = _patch_passes(surfaces, choice.setups, parts, tool, toolpath, chord_mm=chord_mm,
-                                       check_cancel=check_cancel)
+                                       processes=processes, check_cancel=check_cancel)
     left = np.full(len(samples.area), np.inf)
     stats = _finish_rest_of_part(parts, samples, choice.reach, passes, left, h=h, scallop_mm=scallop_mm,
                                  chord_mm=chord_mm, progress=progress_between(progress, 0.2, 0.8),

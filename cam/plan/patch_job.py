@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam import CheckCancel, GeometryError, Progress
+from cam import CheckCancel, GeometryError, Progress, map_forked
 from cam.gcode.moves import MoveList
 from cam.gcode.setup import Setup
 from cam.params import ToolParams, ToolpathParams
@@ -191,33 +191,55 @@ def _finishable(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarra
     return out
 
 
+def _plan_one_patch(p: Patch, setup: Setup, whole: dict[int, BSplineSurface], index: SurfaceIndex, tool: ToolParams,
+                    toolpath: ToolpathParams, *, finish: _Finishable, assignment: Assignment,
+                    check_cancel: CheckCancel) -> tuple[list[PatchPlan], list[dict], list[dict]]:
+    """One patch's plans (its rectangle, then the strips beside it that it leaves), what of it cannot be
+    planned (`unmachined` entries) and each rectangle that is not the whole patch (`partial` entries)."""
+    trimmed = finish.trimmed.get(p.id)
+    share = assignment.reach.get(p.id, 1.0) * (trimmed.kept if trimmed is not None else 1.0)
+    options = {"reach_fraction": share, "check_cancel": check_cancel, "to_part": setup.to_part}
+    try:
+        plans = [plan_patch(p, index, tool, toolpath, **options)]
+    except (TooConcave, Unreachable, NotPlannable) as exc:
+        return [], [{"patch": p.id, "reason": str(exc)}], []
+    partial = []
+    claim = _claim(whole[p.id], plans[0], trimmed)
+    if claim is not None:
+        partial.append({"patch": p.id, **claim})
+        more, claims = _plan_beside(p, plans[0].region, whole[p.id], index, tool, toolpath, trimmed=trimmed,
+                                    **options)
+        plans += more
+        partial += claims
+    return plans, [], partial
+
+
 def _plan_setup_patches(setup: Setup, mine: list[int], patches: list[Patch], whole: dict[int, BSplineSurface],
                         index: SurfaceIndex, tool: ToolParams, toolpath: ToolpathParams, *,
                         finish: _Finishable, assignment: Assignment, unmachined: list[dict], partial: list[dict],
-                        on_patch, check_cancel: CheckCancel) -> list[PatchPlan]:
-    """The plans of one setup's patches (`mine`), with the strips beside a rectangle that leaves some;
-    what cannot be planned goes to `unmachined`, each rectangle that is not a whole patch to `partial`."""
+                        processes: int, progress: Progress, check_cancel: CheckCancel) -> list[PatchPlan]:
+    """The plans of one setup's patches (`mine`), `processes` patches at once (`cam.map_forked`: the same
+    plans as one after another); what cannot be planned goes to `unmachined`, each rectangle that is not a
+    whole patch to `partial`, in patch order."""
+    todo = [p for p in patches if p.id in mine]
+    results = map_forked(lambda k, cc: _plan_one_patch(todo[k], setup, whole, index, tool, toolpath, finish=finish,
+                                                       assignment=assignment, check_cancel=cc),
+                         len(todo), processes=processes, check_cancel=check_cancel, progress=progress)
     plans = []
-    for p in patches:
-        if p.id not in mine:
-            continue
-        on_patch(p.id)
-        trimmed = finish.trimmed.get(p.id)
-        share = assignment.reach.get(p.id, 1.0) * (trimmed.kept if trimmed is not None else 1.0)
-        options = {"reach_fraction": share, "check_cancel": check_cancel, "to_part": setup.to_part}
-        try:
-            plans.append(plan_patch(p, index, tool, toolpath, **options))
-        except (TooConcave, Unreachable, NotPlannable) as exc:
-            unmachined.append({"patch": p.id, "reason": str(exc)})
-            continue
-        claim = _claim(whole[p.id], plans[-1], trimmed)
-        if claim is not None:
-            partial.append({"patch": p.id, **claim})
-            more, claims = _plan_beside(p, plans[-1].region, whole[p.id], index, tool, toolpath, trimmed=trimmed,
-                                        **options)
-            plans += more
-            partial += claims
+    for got, lost, part in results:
+        plans += got
+        unmachined += lost
+        partial += part
     return [pp for pp in plans if pp.passes]
+
+
+def _patches_progress(progress: Progress, setup_id: int, before: int, n: int, total: int) -> Progress:
+    """progress(share of this setup's n patches done) as a share of all `total` patches, `before` of them done."""
+
+    def report(fraction: float, message: str | None = None) -> None:
+        progress(0.05 + 0.9 * (before + fraction * n) / total, f"setup {setup_id}: {round(fraction * n)} of {n} patches")
+
+    return report
 
 
 def _link_setup(plans: list[PatchPlan], solid: list[Patch], index: SurfaceIndex, *, r: float,
@@ -242,7 +264,8 @@ def _link_setup(plans: list[PatchPlan], solid: list[Patch], index: SurfaceIndex,
 
 def plan_patches(ids: list[int], surfaces: list[BSplineSurface], setups: list[Setup], tool: ToolParams,
                  toolpath: ToolpathParams, *, signs: np.ndarray | None = None, add_setups: bool = True,
-                 progress: Progress | None = None, check_cancel: CheckCancel | None = None) -> PatchesPlan:
+                 processes: int = 1, progress: Progress | None = None, check_cancel: CheckCancel | None = None
+                 ) -> PatchesPlan:
     """PatchesPlan every patch (part-frame surfaces with ids) over the setups; see the module docstring.
 
     Parameters
@@ -256,6 +279,8 @@ def plan_patches(ids: list[int], surfaces: list[BSplineSurface], setups: list[Se
     signs : (len(surfaces),) float or None
         +1/−1 per surface making S_u × S_v outward
         (see `cam.spline.geometry.orientation_signs`); default +1.
+    processes : int
+        Patches planned at once, in forked processes (the plans are those of one process).
     progress, check_cancel : callable or None
         cam's callbacks (see `cam`), called between patches.
 
@@ -288,21 +313,20 @@ def plan_patches(ids: list[int], surfaces: list[BSplineSurface], setups: list[Se
                                add_opposite=add_setups)
     unmachined, partial = finish.unmachined + assignment.unmachined, []
     whole = {int(i): s for i, s in zip(ids, surfaces)}  # what the tool must not cut: every surface, whole
-    total, done = max(sum(len(v) for v in assignment.patches.values()), 1), [0]
-
-    def on_patch(setup_id: int, patch_id: int) -> None:
-        check_cancel()
-        progress(0.05 + 0.9 * done[0] / total, f"setup {setup_id}: patch {patch_id}")
-        done[0] += 1
+    total, done = max(sum(len(v) for v in assignment.patches.values()), 1), 0
 
     out_setups = []
     for position, setup in enumerate(assignment.setups):
         solid = machine_patches(ids, surfaces, signs, setup)  # trimmed-off strips are still part of the part
         index = build_index(solid, spacing_mm=max(r / 6, 0.2))
-        plans = _plan_setup_patches(setup, assignment.patches.get(setup.id, []),
-                                    machine_patches(ids, finish.surfaces, signs, setup), whole, index, tool, toolpath,
-                                    finish=finish, assignment=assignment, unmachined=unmachined, partial=partial,
-                                    on_patch=lambda pid, sid=setup.id: on_patch(sid, pid), check_cancel=check_cancel)
+        mine = assignment.patches.get(setup.id, [])
+        check_cancel()
+        plans = _plan_setup_patches(setup, mine, machine_patches(ids, finish.surfaces, signs, setup), whole, index,
+                                    tool, toolpath, finish=finish, assignment=assignment, unmachined=unmachined,
+                                    partial=partial, processes=processes,
+                                    progress=_patches_progress(progress, setup.id, done, len(mine), total),
+                                    check_cancel=check_cancel)
+        done += len(mine)
         plans, moves = _link_setup(plans, solid, index, r=r, toolpath=toolpath)
         out_setups.append(SetupPatches(setup=setup, patches=plans, moves=moves, program=program_name(position)))
     progress(0.97, "linking done")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cam.gcode import write_program
 from cam.gcode.setup import Setup
 from cam.params import ToolParams, ToolpathParams
 from cam.plan import plan_patch
@@ -544,3 +545,15 @@ def test_a_hollow_between_the_concavity_samples_is_reported_where_a_ring_meets_i
     assert 2.4 < err.value.radius_mm < 3.0 and "use a smaller ball" in str(err.value)
     assert len(err.value.uv) >= 32 and np.all(err.value.uv[:, 1] == pytest.approx(v_trough, abs=1e-12))
     assert err.value.point[1] == pytest.approx(height * v_trough, abs=1e-6)
+
+
+def test_patches_planned_in_two_processes_give_the_same_program():
+    trough = analytic.cylinder(20.0, 12.0, 50.0)
+    args = ([7, 8], [trough, analytic.plane(10, 10, z=-5.0)], EYE, ToolParams(radius_mm=3.0),
+            ToolpathParams(scallop_height_mm=0.16))
+    one, two = plan_patches(*args), plan_patches(*args, processes=2)
+    assert [u["patch"] for u in one.unmachined] == [u["patch"] for u in two.unmachined]
+    assert one.partial == two.partial
+    for a, b in zip(one.setups, two.setups, strict=True):
+        assert write_program(a.moves, header={}) == write_program(b.moves, header={})
+        assert [pp.patch for pp in a.patches] == [pp.patch for pp in b.patches]

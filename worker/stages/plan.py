@@ -20,6 +20,7 @@ from cam.plan.documents import (
     toolpath_rows,
 )
 from cam.spline.geometry import orientation_signs
+from core.config import stage_processes
 from worker.context import StageContext, StageError
 
 
@@ -45,6 +46,7 @@ def run_plan(ctx: StageContext) -> dict[str, Path]:
         raise StageError("mesh.ply has no triangles to plan on")
     base, given = ctx.read("setup.json", read_setups) if "setup.json" in ctx.inputs else ({}, [])
     plan = plan_job(mesh.points, mesh.faces, tool, tp, surfaces=_surfaces(ctx, mesh), given_setups=given,
+                    processes=stage_processes(ctx.settings.get("stage_processes")),
                     progress=ctx.progress_between(0.0, 0.95), check_cancel=ctx.check_cancel)
     out: dict[str, Path] = {}
     for k, program in enumerate(plan.programs):
