@@ -149,6 +149,10 @@ def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[
     return names[: names.index(until) + 1]
 
 
+#: Settings that change how fast a stage runs, never what it writes (`cam.map_forked`): not in the cache key.
+SPEED_ONLY_SETTINGS = frozenset({"stage_processes"})
+
+
 def cache_key(spec: StageSpec, params: JobParams, input_hashes: dict[str, str],
               settings: dict[str, Any], *, code: str) -> str:
     """hash(stage, stage code version, its params, its input artifact hashes) as in DESIGN.
@@ -163,7 +167,7 @@ def cache_key(spec: StageSpec, params: JobParams, input_hashes: dict[str, str],
         "version": spec.version,
         "code": code,
         "params": {g: params.effective(g).model_dump(mode="json") for g in spec.param_groups},
-        "settings": {k: settings[k] for k in spec.settings},
+        "settings": {k: settings[k] for k in spec.settings if k not in SPEED_ONLY_SETTINGS},
         "inputs": {k: input_hashes[k] for k in sorted(input_hashes) if k in spec.inputs},
     }
     text = json.dumps(material, sort_keys=True, separators=(",", ":"))

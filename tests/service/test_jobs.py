@@ -112,6 +112,8 @@ def test_the_fit_cache_key_follows_the_tolerance_it_uses_not_the_toolpath_group(
     # tolerance equal to the derived one is the same fit.
     assert key != cache_key(fit, JobParams(toolpath={"scallop_height_mm": 0.1}), {}, {}, code="c")
     assert key == cache_key(fit, JobParams(fit={"tolerance_mm": 0.032}), {}, {}, code="c")
+    # How many processes fit the patches changes the speed, not the surfaces.
+    assert key == cache_key(fit, JobParams(), {}, {"stage_processes": 2}, code="c")
 
 
 def test_cache_key_follows_the_code_the_stage_runs(tmp_path, monkeypatch):
