@@ -60,10 +60,11 @@ class Settings(BaseSettings):
         default=3, ge=1,
         validation_alias=AliasChoices("CLOUD2CNC_MAX_STAGE_ATTEMPTS", "max_stage_attempts"),
     )
-    stage_time_limit_s: float = Field(
-        default=3600.0, gt=0,
+    stage_time_limit_s: float | None = Field(
+        default=None, gt=0,
         validation_alias=AliasChoices("CLOUD2CNC_STAGE_TIME_LIMIT_S", "stage_time_limit_s"),
-        description="Hard limit of one stage; the soft limit that fails it cleanly is 95 % of it.",
+        description="Hard limit of every stage; unset: each stage's own (core.stages). The soft limit that "
+                    "fails a stage cleanly is 95 % of it.",
     )
     worker_max_memory_mb: int = Field(
         default=4096, ge=64,

@@ -18,7 +18,10 @@ QUEUE = "cloud2cnc"
 
 
 def celery_config(settings: Settings) -> dict:
-    hard = settings.stage_time_limit_s
+    from core.stages import DEFAULT_STAGE_LIMIT_S
+
+    # Each stage's task carries its own limit (enqueue_job); this is the fallback and the redelivery bound.
+    hard = max(settings.stage_time_limit_s or 0.0, DEFAULT_STAGE_LIMIT_S)
     conf = {
         "broker_url": settings.celery_broker_url,
         "task_default_queue": QUEUE,

@@ -37,7 +37,9 @@ class StageSpec:
     settings: tuple[str, ...] = field(default=())
     """Operator settings (from `Settings`) the stage reads; they enter the cache key too."""
     time_limit_s: float | None = None
-    """Hard time limit of this stage; None takes `Settings.stage_time_limit_s`."""
+    """Hard time limit of this stage unless the operator sets `Settings.stage_time_limit_s`; None: 3600 s."""
+    faster: str = ""
+    """What a user can change to make the stage faster (named in the message of a stage out of time)."""
 
 
 STAGES: tuple[StageSpec, ...] = (
@@ -58,6 +60,7 @@ STAGES: tuple[StageSpec, ...] = (
         param_groups=("reconstruct",),
         settings=("blas_threads",),
         time_limit_s=1800.0,
+        faster="a lower reconstruct.resolution or reconstruct.iterations, or the `fast` reconstruct.preset",
     ),
     StageSpec(
         name="denoise",
@@ -66,6 +69,7 @@ STAGES: tuple[StageSpec, ...] = (
         outputs=("mesh.ply", "denoise.json"),
         param_groups=("denoise",),
         time_limit_s=1800.0,
+        faster="fewer denoise.max_iterations, or denoise.enabled = false for a clean mesh",
     ),
     StageSpec(
         name="remesh",
@@ -74,6 +78,7 @@ STAGES: tuple[StageSpec, ...] = (
         outputs=("quads.obj", "remesh.json"),
         param_groups=("remesh",),
         time_limit_s=1200.0,
+        faster="a lower remesh.target_faces, fewer remesh.attempts or remesh.candidates",
     ),
     StageSpec(
         name="segment",
@@ -91,6 +96,8 @@ STAGES: tuple[StageSpec, ...] = (
         param_groups=("fit",),  # with its tolerance resolved (JobParams.effective)
         settings=("stage_processes",),
         time_limit_s=1800.0,
+        faster="a larger fit.tolerance_mm or fit.knot_spacing_quads, fewer fit.max_refinements, "
+               "a lower remesh.target_faces",
     ),
     StageSpec(
         name="plan",
@@ -100,6 +107,8 @@ STAGES: tuple[StageSpec, ...] = (
         param_groups=("tool", "toolpath"),
         settings=("stage_processes",),
         time_limit_s=1800.0,
+        faster="a larger toolpath.scallop_height_mm or tool.radius_mm, toolpath.patch_passes = false, "
+               "fewer toolpath.max_setups, no tool.rest_radius_mm",
     ),
     StageSpec(
         name="verify",
@@ -108,6 +117,7 @@ STAGES: tuple[StageSpec, ...] = (
         outputs=("verify.json", "scallop.ply"),
         param_groups=("tool", "toolpath"),
         time_limit_s=1800.0,
+        faster="a lower toolpath.verify_samples_per_interval or a larger toolpath.scallop_height_mm",
     ),
 )
 
@@ -134,9 +144,16 @@ def load_stages(plugins: str = "", only: str = "") -> tuple[StageSpec, ...]:
     return tuple(stages)
 
 
-def time_limit_s(spec: StageSpec, default_s: float) -> float:
-    """The hard time limit of a stage in seconds."""
-    return spec.time_limit_s if spec.time_limit_s is not None else default_s
+#: The hard limit of a stage that names none, and of Celery tasks in general, s.
+DEFAULT_STAGE_LIMIT_S = 3600.0
+
+
+def time_limit_s(spec: StageSpec, configured_s: float | None) -> float:
+    """The hard time limit of a stage in seconds: the operator's (`Settings.stage_time_limit_s`) when set,
+    else the stage's own, else `DEFAULT_STAGE_LIMIT_S`."""
+    if configured_s is not None:
+        return float(configured_s)
+    return spec.time_limit_s if spec.time_limit_s is not None else DEFAULT_STAGE_LIMIT_S
 
 
 def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[str]:

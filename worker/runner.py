@@ -150,6 +150,7 @@ class _Callbacks:
         self._last_write = self._last_cancel = 0.0
         self._canceled = False
         self.heartbeat: _Heartbeat | None = None
+        self.last: tuple[float, str | None] = (0.0, None)  # the latest progress, for a stage out of time
 
     def renew(self, progress: float | None = None, message: str | None = None) -> bool:
         with self._lock, self._Session.begin() as session:
@@ -157,6 +158,7 @@ class _Callbacks:
                                     progress=progress, message=message)
 
     def progress(self, fraction: float, message: str | None = None) -> None:
+        self.last = (fraction, message or self.last[1])
         now = time.monotonic()
         # Throttle DB writes; the final 1.0 is recorded when the stage finishes.
         if now - self._last_write >= 0.5:
@@ -175,12 +177,17 @@ class _Callbacks:
                     raise StageCanceled()
 
 
-def _failure_detail(exc: BaseException, spec: StageSpec, settings: Settings, job_id: str) -> str:
-    """What the user reads about an exception that is not theirs to act on: a time limit, or our bug."""
+def _failure_detail(exc: BaseException, spec: StageSpec, settings: Settings, job_id: str,
+                    last: tuple[float, str | None] = (0.0, None)) -> str:
+    """What the user reads about an exception that is not theirs to act on: a time limit (where the stage
+    was, from its `last` progress, and what makes it faster), or our bug."""
     if type(exc).__name__ == "SoftTimeLimitExceeded":
         limit = time_limit_s(spec, settings.stage_time_limit_s)
-        return (f"stage {spec.name} ran longer than its limit of {limit:.0f} s; "
-                "try a smaller input or coarser parameters")
+        fraction, message = last
+        where = f"{100 * fraction:.0f} %" + (f" ({message})" if message else "")
+        faster = f"; {spec.faster} make it faster" if spec.faster else ""
+        return (f"stage {spec.name} ran longer than its limit of {limit:.0f} s; it had got to {where}{faster}; "
+                "an operator can raise the limit (CLOUD2CNC_STAGE_TIME_LIMIT_S)")
     ref = uuid.uuid4().hex[:12]
     log.exception("stage %s of job %s crashed (ref %s)", spec.name, job_id, ref)
     return f"internal error in stage {spec.name} (reference {ref}); the operator's log has details"
@@ -254,7 +261,8 @@ def run_stage(settings: Settings, job_id: str, stage_name: str) -> Outcome:
                 return Outcome.STOP
             except Exception as exc:  # noqa: BLE001 — anything else is our bug; the user gets a reference
                 finish(status="failed", error=_problem("stage-error", f"Stage {stage_name} failed",
-                                                       _failure_detail(exc, spec, settings, job_id), stage_name))
+                                                       _failure_detail(exc, spec, settings, job_id, calls.last),
+                                                       stage_name))
                 return Outcome.STOP
         return _record_success(Session, store, spec, job_id, token, key, outputs, started)
     finally:

@@ -53,3 +53,16 @@ def test_a_repeated_message_for_a_finished_stage_continues_the_chain(setup):
     assert run_stage(settings, job_id, "ingest") is Outcome.CONTINUE  # a redelivered duplicate
     after = client.get(f"/v1/jobs/{job_id}").json()["stages"][0]
     assert before == after and after["attempts"] == 1
+
+
+@pytest.mark.parametrize(("configured", "limit"), [(None, "120 s"), (600.0, "600 s")])
+def test_a_stage_out_of_time_says_where_it_got_to_and_what_makes_it_faster(tmp_path, configured, limit):
+    settings = Settings(data_dir=tmp_path / "o", min_points=10, stage_plugins="tests.plugins.overtime",
+                        pipeline="ingest,overtime", stage_time_limit_s=configured)
+    with TestClient(create_app(settings, reconcile=False)) as client:
+        job_id = client.post("/v1/jobs", files={"file": ("a.xyz", xyz_bytes(50))}).json()["id"]
+        run_stage(settings, job_id, "ingest")
+        assert run_stage(settings, job_id, "overtime") is Outcome.STOP
+        detail = client.get(f"/v1/jobs/{job_id}").json()["stages"][1]["error"]["detail"]
+    assert detail.startswith(f"stage overtime ran longer than its limit of {limit}; it had got to 45 % (step two of five)")
+    assert "a larger overtime.step make it faster" in detail and "smaller input" not in detail
