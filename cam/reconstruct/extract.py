@@ -124,8 +124,15 @@ def _drop_fins(faces: np.ndarray) -> np.ndarray:
     surrounding surface closed, as the fin contributes no area to the part.
     """
     key = np.sort(faces, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return faces[counts[inverse.reshape(-1)] == 1]
+    # Rows sorted lexicographically; a row equal to a neighbour occurs more than once (np.unique with
+    # axis=0 does the same through a slow structured view).
+    order = np.lexsort(key.T[::-1])
+    ordered = key[order]
+    same = np.all(ordered[1:] == ordered[:-1], axis=1)
+    repeated = np.zeros(len(faces), dtype=bool)
+    repeated[order[1:][same]] = True
+    repeated[order[:-1][same]] = True
+    return faces[~repeated]
 
 
 def _signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
@@ -151,7 +158,8 @@ def is_watertight(faces: np.ndarray) -> bool:
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     key = directed[:, 0].astype(np.int64) * (int(faces.max()) + 1) + directed[:, 1]
     rev = directed[:, 1].astype(np.int64) * (int(faces.max()) + 1) + directed[:, 0]
-    uniq, counts = np.unique(key, return_counts=True)
-    if (counts != 1).any():
+    key.sort()
+    if (key[1:] == key[:-1]).any():
         return False
-    return bool(np.isin(rev, uniq, assume_unique=False).all())
+    at = np.minimum(np.searchsorted(key, rev), len(key) - 1)
+    return bool((key[at] == rev).all())
