@@ -98,20 +98,25 @@ def _exact(qx, qy, t, n, r, out):
     out[0], out[1], out[2], out[3] = z, x, y, w
 
 
+@njit(cache=True, inline="always")
+def _bucket(qx, qy, origin, cell, shape, starts):
+    """The range of `members` bucketed in the cell of (qx, qy); empty outside the grid or for NaN."""
+    if not (math.isfinite(qx) and math.isfinite(qy)):
+        return 0, 0
+    ci = math.floor((qx - origin[0]) / cell)
+    cj = math.floor((qy - origin[1]) / cell)
+    if not (0 <= ci < shape[0] and 0 <= cj < shape[1]):
+        return 0, 0
+    c = int(ci) * shape[1] + int(cj)
+    return starts[c], starts[c + 1]
+
+
 @njit(cache=True, parallel=True)
 def _drop_queries(xy, triangles, normals, top, lo, hi, r, origin, cell, shape, starts, members, z_out, p_out):
     """Fill z_out (n,) and p_out (n, 3) with the drop-cutter height and contact over each xy (n, 2)."""
-    nx, ny = shape[0], shape[1]
     for i in prange(xy.shape[0]):
         qx, qy = xy[i, 0], xy[i, 1]
-        if not (math.isfinite(qx) and math.isfinite(qy)):
-            continue
-        ci = math.floor((qx - origin[0]) / cell)
-        cj = math.floor((qy - origin[1]) / cell)
-        if not (0 <= ci < nx and 0 <= cj < ny):
-            continue
-        c = int(ci) * ny + int(cj)
-        first, last = starts[c], starts[c + 1]
+        first, last = _bucket(qx, qy, origin, cell, shape, starts)
         bounds = np.empty(last - first)
         top_bound = -np.inf
         for k in range(first, last):
@@ -152,17 +157,10 @@ def _drop_queries(xy, triangles, normals, top, lo, hi, r, origin, cell, shape, s
 @njit(cache=True, parallel=True)
 def _surface_queries(xy, triangles, normals, lo, hi, origin, cell, shape, starts, members, z_out):
     """Fill z_out (n,) with the highest facet height over each xy (n, 2) (-inf where none)."""
-    nx, ny = shape[0], shape[1]
     for i in prange(xy.shape[0]):
         qx, qy = xy[i, 0], xy[i, 1]
-        if not (math.isfinite(qx) and math.isfinite(qy)):
-            continue
-        ci = math.floor((qx - origin[0]) / cell)
-        cj = math.floor((qy - origin[1]) / cell)
-        if not (0 <= ci < nx and 0 <= cj < ny):
-            continue
-        c = int(ci) * ny + int(cj)
-        for k in range(starts[c], starts[c + 1]):
+        first, last = _bucket(qx, qy, origin, cell, shape, starts)
+        for k in range(first, last):
             tri = members[k]
             if lo[tri, 0] <= qx <= hi[tri, 0] and lo[tri, 1] <= qy <= hi[tri, 1]:
                 z, _, _, _ = _facet(qx, qy, triangles[tri], normals[tri], 0.0)
