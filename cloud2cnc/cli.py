@@ -84,6 +84,9 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from core.config import set_thread_limits
+
+    set_thread_limits(_settings())  # as a worker does, before numpy loads
     from core.params import merge_params, parse_assignment
     from worker.local import run_local
 

@@ -133,3 +133,12 @@ def stage_processes(configured: int | None) -> int:
         return int(configured)
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, cpus // max(1, int(os.environ.get("CLOUD2CNC_CONCURRENCY", "1") or 1)))
+
+
+def set_thread_limits(settings: Settings) -> None:
+    """Threads of BLAS/OpenMP (`blas_threads`) and of the compiled drop-cutter (`stage_processes`), set in
+    the environment unless already set; call it before numpy loads. Parallel pieces of a stage run in
+    processes (`cam.map_forked`), each of which would otherwise start a BLAS thread per CPU."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, str(settings.blas_threads))
+    os.environ.setdefault("NUMBA_NUM_THREADS", str(stage_processes(settings.stage_processes)))
