@@ -4,7 +4,8 @@ The points spread along the moves are bucketed on a 3-D grid whose cell is the s
 moves near a point are those owning a spread point in the 27 cells around it. Each move is taken once
 per point, measured exactly (its axis within r + reach, then the capsule interval) and folded into a
 minimum and a maximum, which do not depend on the order: the results are those of the vectorised code
-that came before, bit for bit (its operations are written out here in the same order).
+that came before, bit for bit (its operations are written out here in the same order, its three-term
+einsum dot products included, `_dot`).
 """
 
 from __future__ import annotations
@@ -24,10 +25,16 @@ _BLOCK = 256
 
 
 @njit(cache=True, inline="always")
+def _dot(x0, x1, x2, y0, y1, y2):
+    """x · y as numpy's einsum("ij,ij->i") sums three products here: (x0 y0 + x2 y2) + x1 y1."""
+    return (x0 * y0 + x2 * y2) + x1 * y1
+
+
+@njit(cache=True, inline="always")
 def _sphere(px, py, pz, nx, ny, nz, cx, cy, cz, r):
     wx, wy, wz = px - cx, py - cy, pz - cz
-    b = nx * wx + ny * wy + nz * wz
-    q = b * b - ((wx * wx + wy * wy + wz * wz) - r * r)
+    b = _dot(nx, ny, nz, wx, wy, wz)
+    q = b * b - (_dot(wx, wy, wz, wx, wy, wz) - r * r)
     root = math.sqrt(max(q, 0.0))
     if q >= 0:
         return -b - root, -b + root
@@ -45,12 +52,12 @@ def _capsule(px, py, pz, nx, ny, nz, a, b, r):
     ok = length > 1e-12
     dx, dy, dz = (abx / length, aby / length, abz / length) if ok else (0.0, 0.0, 0.0)
     wx, wy, wz = px - a[0], py - a[1], pz - a[2]
-    nd, wd = nx * dx + ny * dy + nz * dz, wx * dx + wy * dy + wz * dz
+    nd, wd = _dot(nx, ny, nz, dx, dy, dz), _dot(wx, wy, wz, dx, dy, dz)
     npx, npy, npz = nx - nd * dx, ny - nd * dy, nz - nd * dz
     wpx, wpy, wpz = wx - wd * dx, wy - wd * dy, wz - wd * dz
-    qa = npx * npx + npy * npy + npz * npz
-    qb = npx * wpx + npy * wpy + npz * wpz
-    qc = (wpx * wpx + wpy * wpy + wpz * wpz) - r * r
+    qa = _dot(npx, npy, npz, npx, npy, npz)
+    qb = _dot(npx, npy, npz, wpx, wpy, wpz)
+    qc = _dot(wpx, wpy, wpz, wpx, wpy, wpz) - r * r
     disc = qb * qb - qa * qc
     good = ok and qa > 1e-14 and disc >= 0
     if not good:
@@ -72,8 +79,8 @@ def _capsule(px, py, pz, nx, ny, nz, a, b, r):
 @njit(cache=True, inline="always")
 def _segment_distance(px, py, pz, a, b):
     abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    den = max(abx * abx + aby * aby + abz * abz, 1e-300)
-    t = ((px - a[0]) * abx + (py - a[1]) * aby + (pz - a[2]) * abz) / den
+    den = max(_dot(abx, aby, abz, abx, aby, abz), 1e-300)
+    t = _dot(px - a[0], py - a[1], pz - a[2], abx, aby, abz) / den
     t = min(max(t, 0.0), 1.0)
     ex, ey, ez = px - (a[0] + t * abx), py - (a[1] + t * aby), pz - (a[2] + t * abz)
     return math.sqrt(ex * ex + ey * ey + ez * ez)
