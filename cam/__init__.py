@@ -98,7 +98,7 @@ def _map_in_children(fn, n: int, processes: int, cancel: CheckCancel, report: Pr
     selector = selectors.DefaultSelector()
     try:
         for _ in range(processes):
-            child = _fork_child(fn)
+            child = _fork_child(fn, [fd for c in children for fd in c[1:]])
             children.append(child)
             selector.register(child[2], selectors.EVENT_READ, child)
             _send(child[1], next(todo, -1))
@@ -129,8 +129,9 @@ def _map_in_children(fn, n: int, processes: int, cancel: CheckCancel, report: Pr
     return results
 
 
-def _fork_child(fn) -> tuple[int, int, int]:
-    """A child that reads indices from a pipe and writes (index, ok, result) back; (pid, task fd, result fd)."""
+def _fork_child(fn, siblings: list[int]) -> tuple[int, int, int]:
+    """A child that reads indices from a pipe and writes (index, ok, result) back; (pid, task fd, result fd).
+    `siblings`: this process's ends of the earlier children's pipes, closed in the new child."""
     task_r, task_w = os.pipe()
     result_r, result_w = os.pipe()
     pid = os.fork()
@@ -138,9 +139,10 @@ def _fork_child(fn) -> tuple[int, int, int]:
         os.close(task_r)
         os.close(result_w)
         return pid, task_w, result_r
-    # The child: only these two pipes; os._exit so that none of the parent's exit handlers run here.
-    os.close(task_w)
-    os.close(result_r)
+    # The child keeps only its own two pipes (so that a sibling sees end of file when the parent is gone) and
+    # leaves by os._exit, so that none of the parent's exit handlers run here.
+    for fd in (task_w, result_r, *siblings):
+        os.close(fd)
     status = 0
     try:
         with os.fdopen(task_r, "rb") as tasks, os.fdopen(result_w, "wb") as out:
@@ -149,7 +151,11 @@ def _fork_child(fn) -> tuple[int, int, int]:
                     message = (k, True, fn(k, lambda: None))
                 except BaseException as exc:  # noqa: BLE001 — handed to the parent, which raises it
                     message = (k, False, exc)
-                data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+                try:
+                    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+                except Exception as exc:  # noqa: BLE001 — an exception that does not pickle still says what it was
+                    failure = message[2] if not message[1] else exc
+                    data = pickle.dumps((k, False, RuntimeError(f"in call {k}: {failure!r}")))
                 out.write(struct.pack("<q", len(data)) + data)
                 out.flush()
     except BaseException:  # noqa: BLE001 — a broken pipe: the parent is gone

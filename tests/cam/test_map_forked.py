@@ -68,3 +68,18 @@ def test_one_process_runs_here_with_the_callers_cancel():
 
     with pytest.raises(KeyboardInterrupt):
         map_forked(_work, 3, processes=1, check_cancel=cancel)
+
+
+class _Unpicklable(Exception):
+    def __init__(self, message):
+        super().__init__(message)
+        self.handle = lambda: None  # a lambda does not pickle
+
+
+def test_an_error_that_does_not_pickle_still_says_what_it_was():
+    def fail(k, cc):
+        raise _Unpicklable(f"call {k} broke")
+
+    with pytest.raises(RuntimeError, match="call 1 broke"):
+        map_forked(lambda k, cc: fail(k, cc) if k == 1 else k, 3, processes=2)
+
