@@ -21,10 +21,9 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from machine_info import describe_machine  # bench/ is on the path when a script runs
 from opencamlib import ocl
-
-from machine_info import describe_machine  # bench/ is on the path when a script runs  # noqa: I001
-from coverage import pockets
+from part_coverage import pockets
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

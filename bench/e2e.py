@@ -2,7 +2,7 @@
 
 Each run is a fresh `cloud2cnc run` process (the same interpreter as this script, its own --out folder) on
 what a user would send: a 50k-point cloud with normals sampled from Fandisk or Block ×10 (made as
-`coverage.py` makes them), the two CSG parts of `coverage.py` uploaded as meshes, and the README example
+`part_coverage.py` makes them), the two CSG parts of `part_coverage.py` uploaded as meshes, and the README example
 (`examples/dome_block.xyz`, r = 2 mm, at most 20,000 triangles, no knot refinement). Default parameters
 otherwise. Per stage: the seconds the stage reports and the process's peak resident memory while it ran;
 per run: wall time from start to exit and the run's peak resident memory. Medians over --runs.
@@ -147,12 +147,12 @@ def prepare_input(part: str, folder: Path) -> tuple[Path, tuple[str, ...]] | str
     """The file a user would send for `part` and its --set assignments, or why the part cannot run."""
     if part == "example":
         return ROOT / "examples" / "dome_block.xyz", EXAMPLE_SETS
-    try:  # bench/coverage.py (first on the path), not the coverage.py package
-        from coverage import ground_truth, upload
+    try:  # bench/part_coverage.py (bench/ is first on the path)
+        from part_coverage import ground_truth, upload
 
         truth = ground_truth(part)
     except ImportError as exc:  # the bench extras (opencamlib, pygcode, manifold3d) are missing
-        return f"bench/coverage.py needs {exc.name}: {exc}"
+        return f"bench/part_coverage.py needs {exc.name}: {exc}"
     if truth is None:
         return f"its ground truth is missing (../shared/data/{part.removesuffix('-cloud')}_gt.obj)"
     folder.mkdir(parents=True, exist_ok=True)
@@ -364,10 +364,10 @@ def run_part(part: str, codes: dict[str, dict], runs: int, work: Path, profile: 
 def run_scaling(code: dict, work: Path) -> dict:
     """Fandisk ×10 clouds of each size at each scallop height, new code, one run each."""
     try:
-        from coverage import ground_truth
+        from part_coverage import ground_truth
     except ImportError as exc:
-        log(f"scaling: skipped, bench/coverage.py needs {exc.name}")
-        return {"skipped": f"bench/coverage.py needs {exc.name}: {exc}"}
+        log(f"scaling: skipped, bench/part_coverage.py needs {exc.name}")
+        return {"skipped": f"bench/part_coverage.py needs {exc.name}: {exc}"}
     truth = ground_truth("fandisk-cloud")
     if truth is None:
         log("scaling: skipped, Fandisk's ground truth is missing (../shared/data/fandisk_gt.obj)")

@@ -1,4 +1,4 @@
-"""The OpenCAMLib baseline of bench/coverage.py: what a user would script with the field's library.
+"""The OpenCAMLib baseline of bench/part_coverage.py: what a user would script with the field's library.
 
 Per setup, on the same mesh our planner gets (`mesh.ply`, in the setup's machine frame): a drop-cutter
 raster along x on the shallow area (contact normal within 60° of the tool axis) and waterline passes on

@@ -4,7 +4,7 @@ independently from their G-code, at r = 3 mm and h = 0.16 and 0.02 mm.
 
 Writes bench/results/toolpath.md and toolpath-*.png. Parts: the analytic surfaces; Fandisk ×10 and Block
 ×10 (when ../shared/data is there) as our own stages fit them from the clean meshes. The patch passes
-alone: what the whole pipeline finishes of a part, against the part itself, is bench/coverage.py's.
+alone: what the whole pipeline finishes of a part, against the part itself, is bench/part_coverage.py's.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ smaller than the ball). The planner was tuned on the test shapes (box, pocket bo
 Fandisk; Block, both clouds and both CSG parts are held out. With `--rest`, the pockets part and Fandisk run
 again with `tool.rest_radius_mm = 1` (with --reuse, plan and verify only, on the first run's setups).
 
-    python bench/coverage.py [part ...] [--rest] [--reuse=DIR [--replan]]
+    python bench/part_coverage.py [part ...] [--rest] [--reuse=DIR [--replan]]
         parts: fandisk, block, fandisk-cloud, block-cloud, bracket, pockets (default: all; `pockets+rest`:
         that part's rest variant alone); --reuse keeps
         each part's pipeline output in DIR and checks it again instead of running the pipeline anew;
@@ -32,8 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-
-from machine_info import describe_machine  # bench/ is on the path when a script runs  # noqa: I001
+from machine_info import describe_machine  # bench/ is on the path when a script runs
 from oclfinish import ocl_program
 from partcheck import left_and_gouge, reachable, read_moves, sample_mesh
 
@@ -385,7 +384,7 @@ def write_report(done: dict, path: Path) -> None:
     keep = ""
     if path.exists() and "## Notes" in path.read_text():
         keep = path.read_text()[path.read_text().index("## Notes"):]
-    text = (f"# Coverage benchmark\n\n`python bench/coverage.py [part ...] [--rest]`. {__doc__.split(chr(10) + chr(10))[1]}\n\n"
+    text = (f"# Coverage benchmark\n\n`python bench/part_coverage.py [part ...] [--rest]`. {__doc__.split(chr(10) + chr(10))[1]}\n\n"
             f"Machine: {done['machine']}.\n\n"
             f"Ball r = {R} mm, h = {H} mm. Shares of the ground-truth part's area; `finished of reachable`: left ≤ h "
             "along the normal, of what the ball reaches from the job's setups; `largest left` and `p99 left` over the "
