@@ -305,6 +305,11 @@ def _frame_key(frame: str) -> str:
     return re.sub(r":\d+\)$", ")", frame)
 
 
+# Plumbing between a stage and its work (the forked map, its lambdas): in every sample of the pieces, they
+# would fill the table's top rows and say nothing.
+PLUMBING = re.compile(r"^(map_forked|_map_in_children|_fork_child|_Each\.map|\S*<lambda>) ")
+
+
 def _sample_stage(frames: list[str], processes: int) -> tuple[str, list[str]]:
     """The stage a sample belongs to and its frames below that stage's `run_<stage>` frame."""
     # The outermost run_<stage> frame is the stage run_local called (a forked worker's stack keeps it too).
@@ -329,6 +334,7 @@ def attribute_samples(raw: Path) -> dict:
         processes = PROCESS_FRAME.findall(stack)
         frames = [_frame_key(f) for f in PROCESS_FRAME.sub("", stack).split(";")]
         stage, below = _sample_stage(frames, len(processes))
+        below = [f for f in below if not PLUMBING.match(f)]
         counts[stage] += int(n)
         for f in set(below):
             inclusive[stage][f] += int(n)
