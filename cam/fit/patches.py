@@ -173,7 +173,7 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
     final = _fit_bordered(problem, coarse, curves, fit_opts, each)
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
-                           params.tolerance_mm, check_cancel=cancel)
+                           params.tolerance_mm, processes=processes, check_cancel=cancel)
     creases = problem.creases
     if creases is None:
         creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=params.crease_angle_deg)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam import CheckCancel
+from cam import CheckCancel, map_forked
 from cam.fit.boundary import SIDES, Layout, side_params
 from cam.fit.foot import distance_to_surface
 from cam.fit.measure import surface_peaks
@@ -197,7 +197,7 @@ def _report_patch(k: int, done: Refined, *, samples, owner, errors, shape, layou
 
 
 def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layout: Layout, tolerance_mm: float, *,
-                  check_cancel: CheckCancel | None = None) -> np.ndarray:
+                  processes: int = 1, check_cancel: CheckCancel | None = None) -> np.ndarray:
     """Distance of every assigned sample to the fitted surfaces: its own patch's, or a neighbour's where closer.
 
     Measured afresh on all samples, not taken from the fit, which may have used a subset; a
@@ -215,6 +215,8 @@ def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layo
         The patches' neighbours (`cam.fit.boundary.boundary_layout`).
     tolerance_mm : float
         Distances above it are searched for and looked up on the neighbours, mm.
+    processes : int
+        Patches measured at once, in forked processes (`cam.map_forked`; the same distances).
     check_cancel : callable or None
         Called before each patch; it raises to stop.
 
@@ -224,25 +226,30 @@ def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layo
         The distances, mm; NaN where the sample has no patch.
     """
     err = np.full(len(P), np.nan)
-    for k, fit in enumerate(fits):
-        if check_cancel is not None:
-            check_cancel()
-        idx = np.flatnonzero(owner == k)
-        if not idx.size:
-            continue
-        d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P[idx], search_above=tolerance_mm)[2]
-        # Every far sample, not only those whose foot is on the border: where the quad mesh cuts
-        # a corner of the part, a sample can take a strip's quad and a foot inside the strip
-        # while the neighbour's surface passes through it.
-        for nb in layout.neighbours[k]:
-            far = np.flatnonzero(d > tolerance_mm)
-            if not far.size:
-                break
-            f = fits[nb]
-            d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[idx[far]],
-                                                            search_above=tolerance_mm)[2])
-        err[idx] = d
+    groups = [np.flatnonzero(owner == k) for k in range(len(fits))]
+    todo = [k for k in range(len(fits)) if groups[k].size]
+    measured = map_forked(lambda i, cc: _patch_errors(P[groups[todo[i]]], todo[i], fits, layout, tolerance_mm),
+                          len(todo), processes=processes, check_cancel=check_cancel)
+    for k, d in zip(todo, measured):
+        err[groups[k]] = d
     return err
+
+
+def _patch_errors(P: np.ndarray, k: int, fits: list[SurfaceFit], layout: Layout, tolerance_mm: float) -> np.ndarray:
+    """Distances (n,) mm of patch k's samples P (n, 3) to its surface, or to a neighbour's where closer."""
+    fit = fits[k]
+    d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P, search_above=tolerance_mm)[2]
+    # Every far sample, not only those whose foot is on the border: where the quad mesh cuts
+    # a corner of the part, a sample can take a strip's quad and a foot inside the strip
+    # while the neighbour's surface passes through it.
+    for nb in layout.neighbours[k]:
+        far = np.flatnonzero(d > tolerance_mm)
+        if not far.size:
+            break
+        f = fits[nb]
+        d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[far],
+                                                        search_above=tolerance_mm)[2])
+    return d
 
 
 def max_gap(patches: list[PatchFit], layout: Layout, shape: list[tuple[int, int]], *, samples: int = 64) -> float:
