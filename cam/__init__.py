@@ -9,7 +9,7 @@ convention every long computation here follows:
 - ``check_cancel()`` is called from long loops and raises the caller's own exception to stop it
   (cam never catches it).
 
-Independent pieces of a stage (the patches of `fit`) run in forked processes through `map_forked`; its
+Independent pieces of a stage (the patches of `fit` and of `plan`) run in forked processes through `map_forked`; its
 results are those of the same calls made one after another, bit for bit.
 
 What a user can act on (a cloud too small, a patch that is no quad grid, a file that is not a mesh)

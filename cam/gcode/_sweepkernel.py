@@ -11,16 +11,14 @@ einsum dot products included, `_dot`).
 from __future__ import annotations
 
 import math
-import threading
 
-import numba
 import numpy as np
 from numba import njit, prange
 
+from cam.mesh._compiled import KERNEL_LOCK
+
 __all__ = ["probe_sweep"]
 
-numba.config.THREADING_LAYER = "workqueue"  # as in cam.mesh._dropkernel: fork-safe, entered under a lock
-_LOCK = threading.Lock()
 _BLOCK = 256
 
 
@@ -147,7 +145,7 @@ def probe_sweep(p: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray, r: f
     ijk = np.floor((spread - origin) / cell).astype(np.int64)
     keys = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
     order = np.argsort(keys, kind="stable")
-    with _LOCK:
+    with KERNEL_LOCK:
         _probe(p, n, np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
                float(r), float(reach), origin, cell, dims, keys[order], order, owner, scallop, gouge)
     return scallop, gouge

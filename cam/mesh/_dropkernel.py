@@ -10,18 +10,14 @@ heights and contact points are bit for bit what it gave.
 from __future__ import annotations
 
 import math
-import threading
 
-import numba
 import numpy as np
 from numba import njit, prange
 
+from cam.mesh._compiled import KERNEL_LOCK
+
 __all__ = ["drop_queries", "surface_queries"]
 
-# numba's own thread pool: fork-safe (Celery's prefork children, QuadriFlow's child), but not safe to enter
-# from two Python threads at once, hence the lock around every parallel call.
-numba.config.THREADING_LAYER = "workqueue"
-_LOCK = threading.Lock()
 
 
 @njit(cache=True, inline="always")
@@ -169,12 +165,12 @@ def _surface_queries(xy, triangles, normals, lo, hi, origin, cell, shape, starts
 
 
 def drop_queries(*args) -> None:
-    """`_drop_queries` under the pool's lock (arguments as there)."""
-    with _LOCK:
+    """`_drop_queries` under the kernels' lock (arguments as there)."""
+    with KERNEL_LOCK:
         _drop_queries(*args)
 
 
 def surface_queries(*args) -> None:
-    """`_surface_queries` under the pool's lock (arguments as there)."""
-    with _LOCK:
+    """`_surface_queries` under the kernels' lock (arguments as there)."""
+    with KERNEL_LOCK:
         _surface_queries(*args)

@@ -44,8 +44,6 @@ class DropIndex:
         Cells along x and y.
     starts, members : (cells + 1,) int64, (k,) int64
         CSR buckets: the triangles near cell c are members[starts[c]:starts[c + 1]].
-    max_bucket : int
-        The most triangles in one bucket (sizes the chunks of queries).
     top : (m,) float64
         Highest corner of each triangle, mm.
     lo, hi : (m, 2) float64
@@ -63,7 +61,6 @@ class DropIndex:
     shape: tuple[int, int]
     starts: np.ndarray
     members: np.ndarray
-    max_bucket: int
 
 
 def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, closed: bool = False,
@@ -121,8 +118,7 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
     starts = np.searchsorted(cells[order], np.arange(shape[0] * shape[1] + 1))
     return DropIndex(triangles=tri, normals=normals, top=tri[:, :, 2].max(axis=1), lo=box_lo, hi=box_hi,
                      radius_mm=float(radius_mm), origin=origin, cell_mm=cell,
-                     shape=shape, starts=starts.astype(np.int64), members=owner[order].astype(np.int64),
-                     max_bucket=max(int(np.diff(starts).max(initial=1)), 1))
+                     shape=shape, starts=starts.astype(np.int64), members=owner[order].astype(np.int64))
 
 
 def drop_ball(index: DropIndex, xy: np.ndarray, *, contact: bool = False
