@@ -81,6 +81,19 @@ class Settings(BaseSettings):
         description="Processes a stage forks for its independent pieces (fit's patches); 0: the CPUs the "
                     "worker may use, shared among its concurrent tasks (`CLOUD2CNC_CONCURRENCY`).",
     )
+    worker_nice: int = Field(
+        default=10, ge=0, le=19,
+        validation_alias=AliasChoices("CLOUD2CNC_WORKER_NICE", "worker_nice"),
+        description="Niceness `cloud2cnc serve` adds to its embedded worker (and so to every process of a "
+                    "stage), so the API answers promptly while a stage computes on the same CPUs; 0: same "
+                    "priority as the API.",
+    )
+    redis_prefix: str = Field(
+        default="",
+        validation_alias=AliasChoices("CLOUD2CNC_REDIS_PREFIX", "redis_prefix"),
+        description="Prepended to every Redis key and channel the queue uses (kombu's global_keyprefix), so "
+                    "deployments or test runs sharing one Redis database keep apart.",
+    )
     stage_plugins: str = Field(
         default="",
         validation_alias=AliasChoices("CLOUD2CNC_STAGE_PLUGINS", "stage_plugins"),

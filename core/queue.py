@@ -43,6 +43,10 @@ def celery_config(settings: Settings) -> dict:
             "visibility_timeout": int(hard * 2 + 60),
         },
     }
+    on_redis = settings.celery_broker_url.startswith(("redis://", "rediss://", "redis+socket://"))
+    if settings.redis_prefix and on_redis:
+        # Every key and channel kombu touches (queues, bindings, unacked hash, pidbox) under one prefix.
+        conf["broker_transport_options"]["global_keyprefix"] = settings.redis_prefix
     if settings.celery_broker_url.startswith("filesystem://"):
         folder = settings.broker_dir.resolve()
         for sub in ("queue", "processed", "control"):

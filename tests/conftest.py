@@ -2,7 +2,11 @@
 
 `backend` runs a test twice: the embedded default (filesystem:// broker, SQLite)
 and the scale-out one (Redis, PostgreSQL), which skips with a reason when
-those servers are not reachable on 127.0.0.1.
+those servers are not reachable on 127.0.0.1. Those servers may be someone
+else's: a test touches only what it made, every Redis key under its own
+`CLOUD2CNC_REDIS_PREFIX` (deleted by that prefix afterwards, never FLUSHDB) and
+a PostgreSQL database of its own (created under a unique name, dropped).
+`CLOUD2CNC_TEST_REDIS_URL` picks the Redis database (default db 0 on 127.0.0.1).
 """
 
 from __future__ import annotations
@@ -23,12 +27,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
 PG_ADMIN = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+REDIS_URL = os.environ.get("CLOUD2CNC_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
+REDIS_TEST_PREFIX = "cloud2cnc-test-"  # + a unique part per test; no glob characters (SCAN MATCH)
 
 
 def _port_open(port: int) -> bool:
     with socket.socket() as s:
         s.settimeout(0.5)
         return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def _redis_answers(url: str) -> bool:
+    from urllib.parse import urlparse
+
+    u = urlparse(url)
+    with socket.socket() as s:
+        s.settimeout(0.5)
+        return s.connect_ex((u.hostname or "127.0.0.1", u.port or 6379)) == 0
 
 
 @dataclass
@@ -75,19 +90,46 @@ def backend(request, tmp_path: Path) -> Iterator[Backend]:
     }
     b = Backend(request.param, env)
     if request.param == "scaled":
-        if not (_port_open(6379) and _port_open(5432)):
-            pytest.skip("scale-out backend needs Redis on 127.0.0.1:6379 and PostgreSQL on 127.0.0.1:5432")
-        import redis
-
-        db = 1 + uuid.uuid4().int % 15
-        client = redis.Redis(host="127.0.0.1", port=6379, db=db)
-        client.flushdb()
+        if not (_redis_answers(REDIS_URL) and _port_open(5432)):
+            pytest.skip(f"scale-out backend needs Redis at {REDIS_URL} and PostgreSQL on 127.0.0.1:5432")
+        prefix = f"{REDIS_TEST_PREFIX}{uuid.uuid4().hex[:12]}:"
+        env.update(CELERY_BROKER_URL=REDIS_URL, CLOUD2CNC_REDIS_PREFIX=prefix)
+        b.cleanup.append(lambda: delete_redis_keys(REDIS_URL, prefix))
         url, drop = _postgres_database()
-        env.update(CELERY_BROKER_URL=f"redis://127.0.0.1:6379/{db}", DATABASE_URL=url)
-        b.cleanup += [drop, client.flushdb]
-    yield b
-    for fn in b.cleanup:
-        fn()
+        env.update(DATABASE_URL=url)
+        b.cleanup.append(drop)
+    try:
+        yield b
+    finally:
+        _run_all(b.cleanup)
+
+
+def _run_all(cleanup: list) -> None:
+    """Call every function, even when one raises (then raise the first error)."""
+    error = None
+    for fn in cleanup:
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001 — the others still clean up
+            error = error or exc
+    if error is not None:
+        raise error
+
+
+def delete_redis_keys(url: str, prefix: str) -> int:
+    """Delete the keys under `prefix` (what one test's broker wrote) and nothing else; how many went."""
+    import redis
+
+    if not prefix.startswith(REDIS_TEST_PREFIX) or any(c in prefix for c in "*?[]\\"):
+        raise ValueError(f"refusing to delete Redis keys under {prefix!r}: not a test prefix")
+    client = redis.Redis.from_url(url)
+    try:
+        keys = list(client.scan_iter(match=prefix + "*", count=1000))
+        for start in range(0, len(keys), 500):
+            client.delete(*keys[start:start + 500])
+        return len(keys)
+    finally:
+        client.close()
 
 
 @pytest.fixture
