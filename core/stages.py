@@ -90,9 +90,9 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="fit",
-        version="2",
+        version="3",
         inputs=("quads.obj", "patches.json", "mesh.ply"),
-        outputs=("surfaces.json", "surfaces.igs"),
+        outputs=("surfaces.json", "surfaces.igs", "surfaces.step"),
         param_groups=("fit",),  # with its tolerance resolved (JobParams.effective)
         settings=("stage_processes",),
         time_limit_s=1800.0,
@@ -112,9 +112,9 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="verify",
-        version="2",
+        version="3",
         inputs=("mesh.ply", "setup.json") + PROGRAMS,
-        outputs=("verify.json", "scallop.ply"),
+        outputs=("verify.json", "scallop.ply", "report.html"),
         param_groups=("tool", "toolpath"),
         time_limit_s=1800.0,
         faster="a lower toolpath.verify_samples_per_interval or a larger toolpath.scallop_height_mm",

@@ -10,7 +10,8 @@ from cam.gcode import GCodeError, parse_program
 from cam.io import read_ply, read_setups, write_json
 from cam.io.atomic import atomic_write
 from cam.verify import heat_colors, pass_width_mm
-from cam.verify.part import ProgramIn, measure_part, vertex_values
+from cam.verify.part import PartMeasurement, ProgramIn, measure_part, vertex_values
+from cam.verify.report import ProgramStats, classify_faces, measure_moves, render_report
 from worker.context import StageContext, StageError
 
 
@@ -67,6 +68,24 @@ def _problems(report: dict, tp) -> list[str]:
     return problems
 
 
+def write_report(ctx: StageContext, mesh, doc: dict, setups: list, programs: list[ProgramIn],
+                 m: PartMeasurement, result: dict) -> Path:
+    """report.html: the setup sheet, from this measurement (coverage per face from its samples)."""
+    stats = []
+    for item in programs:
+        cutting, rapid, cutting_min, rapid_min = measure_moves(item.program)
+        stats.append(ProgramStats(name=item.name, setup=item.setup.id, role=item.role,
+                                  tool_radius_mm=item.tool_radius_mm, cutting_mm=cutting, rapid_mm=rapid,
+                                  cutting_min=cutting_min, rapid_min=rapid_min, moves=len(item.program.rapid)))
+    classes = classify_faces(m.samples.face, m.left, m.reach, len(mesh.faces),
+                             target_mm=ctx.params.toolpath.scallop_height_mm)
+    html = render_report(title=f"job {ctx.job_id}", verify=result, setup_doc=doc, setups=setups, programs=stats,
+                         vertices=mesh.points, faces=mesh.faces, face_class=classes,
+                         tool=ctx.params.tool.model_dump(mode="json"),
+                         toolpath=ctx.params.toolpath.model_dump(mode="json"))
+    return atomic_write(ctx.output("report.html"), [html.encode()])
+
+
 def run_verify(ctx: StageContext) -> dict[str, Path]:
     tool, tp = ctx.params.tool, ctx.params.toolpath
     if "mesh.ply" not in ctx.inputs:
@@ -89,6 +108,7 @@ def run_verify(ctx: StageContext) -> dict[str, Path]:
     values = vertex_values(m, len(mesh.points), mesh.faces)
     out["scallop.ply"] = write_heat_ply(ctx.output("scallop.ply"), mesh.points, mesh.faces,
                                         heat_colors(values, tp.scallop_height_mm), values)
+    out["report.html"] = write_report(ctx, mesh, doc, setups, programs, m, result)
     if problems:
         raise StageError("; ".join(problems), outputs=out)
     ctx.progress(1.0, m.report["summary"])
