@@ -19,6 +19,7 @@ MEDIA_TYPES = {
     ".igs": "model/iges",
     ".pcd": "application/x-pcd",
     ".xyz": "text/plain",
+    ".html": "text/html; charset=utf-8",
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import PurePath
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Response
@@ -14,6 +15,10 @@ from service.routes.jobs import _ERRORS, _get_job
 from service.schemas import ArtifactOut
 
 router = APIRouter(prefix="/v1/jobs", tags=["artifacts"])
+
+#: Artifacts a browser shows in place rather than saves (the setup sheet, report.html): sandboxed, with no
+#: script and nothing fetched, since the page is the service's own origin.
+_SHOWN_CSP = {".html": "default-src 'none'; style-src 'unsafe-inline'; img-src data:; sandbox"}
 
 
 @router.get("/{job_id}/artifacts", response_model=list[ArtifactOut], responses=_ERRORS,
@@ -49,5 +54,8 @@ def download_artifact(job_id: str, name: str, session: SessionDep, store: StoreD
     if not path.is_file():
         raise Problem(410, "artifact-gone", "Artifact gone",
                       f"the file behind {name!r} is no longer in the store; rerun the job")
+    csp = _SHOWN_CSP.get(PurePath(name).suffix.lower())
+    if csp:
+        headers.update({"Content-Security-Policy": csp, "X-Content-Type-Options": "nosniff"})
     return FileResponse(path, media_type=media_type(name), filename=name, headers=headers,
-                        content_disposition_type="attachment")
+                        content_disposition_type="inline" if csp else "attachment")
