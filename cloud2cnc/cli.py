@@ -35,9 +35,18 @@ def cmd_serve(args: argparse.Namespace) -> int:
     env = dict(os.environ, CLOUD2CNC_DATA_DIR=str(settings.data_dir.resolve()))
     worker = None
     if not args.no_worker:
-        # A real Celery worker in its own process (and session, so a terminal's Ctrl-C reaches it through us).
-        worker = subprocess.Popen([sys.executable, "-m", "cloud2cnc.cli", "worker", "--concurrency", str(args.concurrency)],
-                                  env=env, start_new_session=True)
+        from worker.lifeline import prepare_embedded_worker
+
+        # A real Celery worker in its own process and session (a terminal's Ctrl-C reaches it only through us,
+        # and we stop it warmly), at a lower CPU priority than the API, bound to our life: a parent-death
+        # signal and its own watch end it with all its processes if we die hard (worker/lifeline.py). Started
+        # from this main thread, which lives as long as we do: the parent-death signal follows the thread.
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "cloud2cnc.cli", "worker", "--concurrency", str(args.concurrency),
+             "--parent-pid", str(os.getpid())],
+            env=env, start_new_session=True,
+            # No thread runs here yet (uvicorn starts below), so a preexec_fn is safe.
+            preexec_fn=prepare_embedded_worker(os.getpid(), nice=settings.worker_nice))  # noqa: PLW1509
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     print(f"cloud2cnc: dashboard and API at {url} (API docs at {url}docs); data in {settings.data_dir.resolve()}",
           flush=True)
@@ -71,6 +80,14 @@ def _stop(proc: subprocess.Popen, grace_s: float = 15.0) -> None:
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
+    if args.parent_pid is not None:
+        from worker.lifeline import follow_parent
+
+        if os.getppid() != args.parent_pid:
+            print(f"cloud2cnc worker: --parent-pid {args.parent_pid} is not this process's parent "
+                  f"({os.getppid()})", file=sys.stderr)
+            return 2
+        follow_parent(args.parent_pid)  # before Celery forks its pool, so the pool is in our group
     os.environ["CLOUD2CNC_CONCURRENCY"] = str(args.concurrency)
     _settings(args.data_dir)
     from worker.celery_app import app
@@ -131,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--concurrency", type=int, default=1)
     p.add_argument("--data-dir", help="overrides CLOUD2CNC_DATA_DIR")
     p.add_argument("--hostname", help="Celery node name, e.g. w1@%%h")
+    p.add_argument("--parent-pid", type=int,
+                   help="end this worker, its pool and its stages' processes when that process (its parent) is "
+                        "gone; `serve` passes its own")
     p.add_argument("--log-level", default="info")
     p.set_defaults(func=cmd_worker)
 
