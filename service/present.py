@@ -17,6 +17,7 @@ MEDIA_TYPES = {
     ".nc": "text/x-gcode",
     ".csv": "text/csv",
     ".igs": "model/iges",
+    ".step": "model/step",
     ".pcd": "application/x-pcd",
     ".xyz": "text/plain",
     ".html": "text/html; charset=utf-8",

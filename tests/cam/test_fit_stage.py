@@ -1,4 +1,5 @@
-"""The fit stage on files as segment writes them: surfaces.json, surfaces.igs, and the failures a user can act on."""
+"""The fit stage on files as segment writes them: surfaces.json, surfaces.igs, surfaces.step, and the failures a
+user can act on."""
 
 from __future__ import annotations
 
@@ -50,12 +51,12 @@ def _changed(params: JobParams, **groups) -> JobParams:
     return JobParams.model_validate(merge_params(params.model_dump(), groups))
 
 
-def test_stage_writes_surfaces_json_and_iges(tmp_path):
+def test_stage_writes_surfaces_json_iges_and_step(tmp_path):
     ctx, MV, MF = _job(tmp_path, cylinder(25.0), blocks=[(0, 7), (7, 14)])
     seen = []
     ctx.progress = lambda f, m=None: seen.append(f)
     out = run_fit(ctx)
-    assert set(out) == {"surfaces.json", "surfaces.igs"}
+    assert set(out) == {"surfaces.json", "surfaces.igs", "surfaces.step"}
     doc = json.loads(out["surfaces.json"].read_text())
     assert [s["patch"] for s in doc["surfaces"]] == [10, 20]
     assert doc["max_c0_gap_mm"] <= 1e-9 and doc["over_tolerance"] == [] and doc["units"] == "mm"
@@ -69,6 +70,8 @@ def test_stage_writes_surfaces_json_and_iges(tmp_path):
     s = surface_from_json(first)
     assert s.control_points.shape[2] == 3
     assert out["surfaces.igs"].read_bytes().count(b"     128") == 4  # two entities, two DE lines each
+    step = out["surfaces.step"].read_text()
+    assert step.count("=B_SPLINE_SURFACE_WITH_KNOTS('patch 10',") == step.count("=ADVANCED_FACE('patch 20',") == 1
     assert seen == sorted(seen) and seen[-1] == 1.0
 
 
@@ -104,7 +107,7 @@ def test_failures_say_what_to_change(tmp_path):
                                                                      "require_tolerance": True})
     with pytest.raises(StageError, match="fit.tolerance_mm") as err:
         run_fit(ctx)
-    assert set(err.value.outputs) == {"surfaces.json", "surfaces.igs"}  # kept for inspection
+    assert set(err.value.outputs) == {"surfaces.json", "surfaces.igs", "surfaces.step"}  # kept for inspection
     # The patch spans the roof's ridge: the message says the layout, not the fit, is at fault there.
     assert "1 of them ([10]) have it at a crease of the mesh" in str(err.value)
     ctx.params = _changed(ctx.params, fit={"require_tolerance": False})

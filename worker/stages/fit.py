@@ -1,4 +1,5 @@
-"""The `fit` stage: one bicubic B-spline surface per patch, C0 across patches, as `surfaces.json` and `surfaces.igs`."""
+"""The `fit` stage: one bicubic B-spline surface per patch, C0 across patches, as `surfaces.json`, `surfaces.igs`
+and `surfaces.step`."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from cam.fit.patches import FitResult, fit_patches
 from cam.io import read_json, read_ply, write_json
 from cam.io.iges import write_iges
 from cam.io.quads import read_quad_obj
+from cam.io.step import write_step
 from core.config import stage_processes
 from worker.context import StageContext, StageError, StageSkipped
 
@@ -59,11 +61,13 @@ def run_fit(ctx: StageContext) -> dict[str, Path]:
     except GeometryError as exc:
         raise StageSkipped(f"the patches cannot be fitted ({exc}); plan finishes the part from mesh.ply without "
                            "patch passes") from exc
-    ctx.progress(0.92, "writing surfaces.json and surfaces.igs")
+    ctx.progress(0.92, "writing surfaces.json, surfaces.igs and surfaces.step")
     shapes = [(g.shape[0] - 1, g.shape[1] - 1) for g in grids]
     document = surfaces_document(result, ids, skipped, shapes)
+    surfaces = [p.surface for p in result.patches]
     out = {"surfaces.json": write_json(ctx.output("surfaces.json"), document),
-           "surfaces.igs": write_iges(ctx.output("surfaces.igs"), [p.surface for p in result.patches], labels=ids)}
+           "surfaces.igs": write_iges(ctx.output("surfaces.igs"), surfaces, labels=ids),
+           "surfaces.step": write_step(ctx.output("surfaces.step"), surfaces, labels=ids)}
     over = [ids[k] for k in result.over_tolerance]
     # Where the worst point is next to a crease of the mesh, the layout is what to change, not the fit.
     at_crease = [ids[k] for k in result.at_crease]
