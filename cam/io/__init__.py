@@ -20,6 +20,8 @@ _EXPORTS = {
     "sniff_format": "cam.io.formats",
     "read_obj": "cam.io.mesh",
     "read_stl": "cam.io.mesh",
+    "read_e57": "cam.io.e57",
+    "read_las": "cam.io.las",
     "read_pcd": "cam.io.pcd",
     "read_ply": "cam.io.ply",
     "write_ply_mesh": "cam.io.ply",
@@ -42,8 +44,10 @@ __all__ = [
     "WriteError",
     "atomic_write",
     "describe_unsupported",
+    "read_e57",
     "read_input",
     "read_json",
+    "read_las",
     "read_obj",
     "read_pcd",
     "read_ply",
@@ -73,6 +77,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:
     from cam.io.atomic import atomic_write
+    from cam.io.e57 import read_e57
     from cam.io.errors import ReadError, WriteError
     from cam.io.formats import (
         FORMAT_EXTENSIONS,
@@ -81,6 +86,7 @@ if TYPE_CHECKING:
         describe_unsupported,
         sniff_format,
     )
+    from cam.io.las import read_las
     from cam.io.mesh import read_obj, read_stl
     from cam.io.pcd import read_pcd
     from cam.io.ply import read_ply, write_ply_mesh, write_ply_points

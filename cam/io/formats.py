@@ -4,7 +4,7 @@ Standard library only: the web service imports this module to reject garbage at
 upload time without loading numpy.
 
 The sniffer trusts content, never the file name: a ``.txt`` may hold XYZ
-columns, a ``.ply`` may be a renamed ZIP. It is strict enough that random bytes,
+columns, a ``.ply`` may be a renamed ZIP, a ``.las`` may be LAZ. It is strict enough that random bytes,
 images, archives, JSON, HTML and prose are refused, and lenient enough for what
 real scanners and CAD tools write (header lines, comma or semicolon separators,
 ``solid`` at the start of a binary STL header).
@@ -36,8 +36,18 @@ FORMAT_EXTENSIONS: dict[str, str] = {
     "stl_binary": ".stl",
     "pcd": ".pcd",
     "xyz": ".xyz",
+    "e57": ".e57",
+    "las": ".las",
+    "laz": ".laz",
 }
 FORMATS = tuple(FORMAT_EXTENSIONS)
+
+# ASTM E2807: the 48-byte header starts with this signature, then major version 1 (uint32, little-endian).
+_E57_SIGNATURE = b"ASTM-E57"
+# ASPRS LAS 1.0-1.4: "LASF", then the version's major and minor bytes at 24 and 25, the header size (uint16) at
+# 94 and the point data record format (uint8) at 104, whose two top bits mark LAZ compression.
+_LAS_SIGNATURE = b"LASF"
+_LAS_MIN_HEADER = 227
 
 _STL_HEADER = 80
 _STL_RECORD = 50
@@ -82,7 +92,9 @@ def sniff_format(head: bytes, *, total_size: int | None = None) -> str | None:
     -------
     format : str or None
         One of ``"ply"``, ``"obj"``, ``"stl_ascii"``, ``"stl_binary"``, ``"pcd"``, ``"xyz"`` (numeric
-        text columns: XYZ, PTS, TXT, CSV), or ``None`` when the bytes are none of these.
+        text columns: XYZ, PTS, TXT, CSV), ``"e57"``, ``"las"``, ``"laz"``, or ``None`` when the bytes are
+        none of these. A scanner file is recognised from its fixed header alone, so a truncated one is still
+        named (its reader then says what is missing).
 
     Raises
     ------
@@ -104,6 +116,9 @@ def sniff_format(head: bytes, *, total_size: int | None = None) -> str | None:
 
     if re.match(rb"ply[ \t]*\r?\n", head):
         return "ply"
+    scanner = _scanner_format(head)
+    if scanner is not None:
+        return scanner
 
     text = _as_text(head, whole=whole)
     if text is not None:
@@ -145,8 +160,10 @@ def describe_unsupported(head: bytes) -> str | None:
         (b"PK\x03\x04", "a ZIP archive; unpack it and upload the point cloud inside"),
         (b"\x1f\x8b", "a gzip file; decompress it and upload the point cloud inside"),
         (b"7z\xbc\xaf\x27\x1c", "a 7-Zip archive; unpack it and upload the point cloud inside"),
-        (b"LASF", "a LAS/LAZ file; export it as PLY or XYZ (e.g. with CloudCompare or PDAL)"),
-        (b"ASTM-E57", "an E57 file; export it as PLY or XYZ (e.g. with CloudCompare)"),
+        (b"LASF", ("a LAS/LAZ file of a version other than 1.0-1.4; export it as LAS 1.4 or PLY "
+                   "(e.g. with CloudCompare or PDAL)")),
+        (b"ASTM-E57", ("an E57 file of a version other than 1.x; export it as E57 1.0 or PLY "
+                       "(e.g. with CloudCompare)")),
         (b"\x89PNG", "a PNG image, not a point cloud"),
         (b"\xff\xd8\xff", "a JPEG image, not a point cloud"),
         (b"%PDF", "a PDF document, not a point cloud"),
@@ -155,6 +172,26 @@ def describe_unsupported(head: bytes) -> str | None:
     for magic, what in known:
         if head.startswith(magic):
             return what
+    return None
+
+
+def _scanner_format(head: bytes) -> str | None:
+    """``"e57"``, ``"las"`` or ``"laz"`` when the head starts with that format's header, else None."""
+    # A head too short to hold the version is a truncated file of that format: its reader says so.
+    if head.startswith(_E57_SIGNATURE):
+        if len(head) < 12:
+            return "e57"
+        (major,) = struct.unpack_from("<I", head, 8)
+        return "e57" if major == 1 else None
+    if head.startswith(_LAS_SIGNATURE):
+        if len(head) < _LAS_MIN_HEADER:
+            return "las"
+        major, minor = head[24], head[25]
+        (header_size,) = struct.unpack_from("<H", head, 94)
+        if major != 1 or minor > 4 or header_size < _LAS_MIN_HEADER:
+            return None
+        # LAZ sets bit 7 of the point format (bit 6 in some older writers) so that LAS readers refuse it.
+        return "laz" if head[104] & 0xC0 else "las"
     return None
 
 

@@ -11,7 +11,7 @@ __all__ = ["InputData"]
 
 @dataclass(frozen=True, eq=False)
 class InputData:
-    """What a file holds, in the file's own units and frame.
+    """What a file holds, in the file's own frame and units (or in mm where ``in_mm`` says so).
 
     Attributes
     ----------
@@ -32,6 +32,9 @@ class InputData:
     notes : tuple of str
         What the reader decided that a user may want to know (columns ignored, polygons triangulated,
         ...), as sentences.
+    in_mm : bool
+        True when the file states its own length unit and the reader has converted ``points`` to mm (E57 is
+        in metres by its standard; a LAS file's CRS may name its unit); ``ingest.units`` does not apply then.
     """
 
     points: np.ndarray
@@ -41,6 +44,7 @@ class InputData:
     format: str = "unknown"
     comments: tuple[str, ...] = field(default=())
     notes: tuple[str, ...] = field(default=())
+    in_mm: bool = False
 
     @property
     def is_mesh(self) -> bool:

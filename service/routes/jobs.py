@@ -163,7 +163,7 @@ def _check_upload(upload: Upload) -> tuple[dict[str, Any], str]:
         raise Problem(415, "unsupported-format", "Unsupported file format",
                       f"{upload.filename or 'the upload'} is not a point cloud or mesh format we read"
                       + (f" (it looks like {looks_like})" if looks_like else "")
-                      + ": send PLY, XYZ/PTS/TXT/CSV, PCD, OBJ or STL (the format is read from the content, "
+                      + ": send PLY, XYZ/PTS/TXT/CSV, PCD, E57, LAS/LAZ, OBJ or STL (the format is read from the content, "
                       "not the extension)",
                       errors=[{"field": "file", "message": "unrecognised format"}])
     return params, fmt

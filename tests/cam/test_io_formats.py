@@ -41,7 +41,7 @@ def test_importing_formats_does_not_load_numpy():
 
 def test_every_format_has_a_stored_extension():
     assert set(FORMATS) == set(FORMAT_EXTENSIONS)
-    assert set(FORMAT_EXTENSIONS.values()) == {".ply", ".obj", ".stl", ".pcd", ".xyz"}
+    assert set(FORMAT_EXTENSIONS.values()) == {".ply", ".obj", ".stl", ".pcd", ".xyz", ".e57", ".las", ".laz"}
 
 
 @pytest.mark.parametrize(

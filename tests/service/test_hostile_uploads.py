@@ -18,6 +18,15 @@ from fastapi.testclient import TestClient
 
 from core.config import Settings
 from service.app import create_app
+from tests.cam.test_io_scanners import (
+    WKT_FTUS,
+    WKT_GEOGRAPHIC,
+    scanner_bytes,
+    wkt_vlr,
+    write_e57_raw,
+    write_e57_without_scans,
+    write_las,
+)
 from tests.conftest import xyz_bytes
 from tests.service.test_api import assert_problem
 from worker.runner import run_stage
@@ -164,6 +173,10 @@ def _stl_bad_count() -> bytes:
     return b"\0" * 80 + struct.pack("<I", 10) + bytes(50 * 10)
 
 
+_E57 = scanner_bytes(".e57", write_e57_raw, cube_points(300) / 100)
+_LAS = scanner_bytes(".las", write_las, cube_points(300))
+_LAZ = scanner_bytes(".laz", write_las, cube_points(3000))
+
 INGEST_CASES = {
     "truncated binary ply": (_binary_ply(cube_points(100))[:-200], "truncated"),
     "header claims more vertices (binary)": (ply_header(5000) + cube_points(100).astype("<f4").tobytes(), "5000"),
@@ -177,6 +190,13 @@ INGEST_CASES = {
     "obj face index out of range": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "index"),
     "ply face index out of range": (ply_header(3, "ascii", faces=1) + b"0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", "index"),
     "mesh of only degenerate faces": (b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\nf 1 1 2\n", "face"),
+    "truncated e57": (_E57[: len(_E57) // 2], "truncated"),
+    "truncated las": (_LAS[:-100], "truncated"),
+    "truncated laz": (_LAZ[: len(_LAZ) // 2], "truncated"),
+    "e57 without a scan": (scanner_bytes(".e57", write_e57_without_scans), "no 3D scan"),
+    "las in degrees": (scanner_bytes(".las", write_las, cube_points(300), vlrs=[wkt_vlr(WKT_GEOGRAPHIC)],
+                                     global_wkt=True), "degrees"),
+    "las over the point limit": (scanner_bytes(".las", write_las, cube_points(6000)), "5000"),
 }
 
 
@@ -229,3 +249,23 @@ def test_mesh_upload_takes_the_mesh_path(client, settings):
     assert job["status"] == "succeeded", job
     names = {a["name"] for a in job["artifacts"]}
     assert "mesh_raw.ply" in names and "cloud.ply" not in names
+
+
+@pytest.mark.parametrize("fmt", ["e57", "las"])
+def test_scanner_uploads_state_their_unit_and_are_read_in_mm(client, settings, fmt):
+    pts = cube_points(200) / 100  # a 10 cm cube: metres in E57, US survey feet by the LAS file's CRS
+    data = (scanner_bytes(".e57", write_e57_raw, pts) if fmt == "e57" else
+            scanner_bytes(".las", write_las, pts, vlrs=[wkt_vlr(WKT_FTUS)], global_wkt=True))
+    # ingest.units says inch, but these files state their own unit, which wins (and the report says so).
+    r = post(client, data, '{"ingest": {"units": "inch"}}', name="scan.bin")
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    assert r.json()["input"]["format"] == fmt and f"input.{fmt}" in {a["name"] for a in r.json()["artifacts"]}
+    run_stage(settings, job_id, "ingest")
+    assert client.get(f"/v1/jobs/{job_id}").json()["status"] == "succeeded"
+    report = client.get(f"/v1/jobs/{job_id}/artifacts/ingest.json").json()
+    mm = 1000.0 if fmt == "e57" else 1200 / 3937 * 1000.0
+    assert report["units"] == "mm" and report["format"] == fmt
+    assert any("converted to mm" in note for note in report["notes"])
+    # Within LAS's half quantum (0.0005 ft) and far from any other unit's factor.
+    np.testing.assert_allclose(report["bbox_mm"]["min"], pts.min(axis=0) * mm, atol=1e-3 * mm)

@@ -13,9 +13,11 @@ def run_ingest(ctx: StageContext) -> dict[str, Path]:
     params = ctx.params.ingest
     ctx.progress(0.05, "reading")
     try:
-        data = read_input(ctx.inputs["input"])
+        data = read_input(ctx.inputs["input"], max_points=ctx.settings["max_points"])
     except ReadError as exc:
         raise StageError(f"could not read the upload: {exc}") from exc
+    if data.in_mm:  # the file stated its unit and the reader converted to mm (its notes say so)
+        params = params.model_copy(update={"units": "mm"})
     ctx.check_cancel()
     ctx.progress(0.6, "cleaning")
     # IngestError (a GeometryError) propagates: its message is what the user sees.

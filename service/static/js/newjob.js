@@ -4,7 +4,7 @@ import { ApiError, api, createJob } from "./api.js";
 import { ParamsForm } from "./form.js";
 import { formatBytes, h, progressBar } from "./util.js";
 
-const ACCEPT = ".ply,.xyz,.pts,.txt,.csv,.pcd,.obj,.stl";
+const ACCEPT = ".ply,.xyz,.pts,.txt,.csv,.pcd,.e57,.las,.laz,.obj,.stl";
 
 let schemaPromise = null;
 export function paramsSchema() {
@@ -42,7 +42,7 @@ export function newJobCard({ focus = false } = {}) {
     "aria-label": "Choose a point cloud or mesh file, or drop one here" },
   h("strong", "Drop a point cloud or mesh here"), h("span", " or "),
   h("label.linklike", { for: "file-input" }, "choose a file"),
-  h("p.hint#file-hint", "PLY, XYZ/PTS/TXT/CSV, PCD (clouds); OBJ, STL, PLY with faces (meshes). Read from the content, not the name."));
+  h("p.hint#file-hint", "PLY, XYZ/PTS/TXT/CSV, PCD, E57, LAS/LAZ (clouds); OBJ, STL, PLY with faces (meshes). Read from the content, not the name."));
 
   const setFile = (f) => {
     file = f || null;
