@@ -44,8 +44,8 @@ FORMATS = tuple(FORMAT_EXTENSIONS)
 
 # ASTM E2807: the 48-byte header starts with this signature, then major version 1 (uint32, little-endian).
 _E57_SIGNATURE = b"ASTM-E57"
-# ASPRS LAS 1.0-1.4: "LASF", then the version's major and minor bytes at 24 and 25, the header size (uint16) at
-# 94 and the point data record format (uint8) at 104, whose two top bits mark LAZ compression.
+# ASPRS LAS 1.0-1.4: "LASF", then the version's major and minor bytes at 24 and 25, and the point data record
+# format (uint8) at 104, whose two top bits mark LAZ compression.
 _LAS_SIGNATURE = b"LASF"
 _LAS_MIN_HEADER = 227
 
@@ -187,8 +187,7 @@ def _scanner_format(head: bytes) -> str | None:
         if len(head) < _LAS_MIN_HEADER:
             return "las"
         major, minor = head[24], head[25]
-        (header_size,) = struct.unpack_from("<H", head, 94)
-        if major != 1 or minor > 4 or header_size < _LAS_MIN_HEADER:
+        if major != 1 or minor > 4:
             return None
         # LAZ sets bit 7 of the point format (bit 6 in some older writers) so that LAS readers refuse it.
         return "laz" if head[104] & 0xC0 else "las"

@@ -116,6 +116,11 @@ def _read_header(target: Path) -> dict:
         raise ReadError(f"LAS version {major}.{minor} is not one we read (1.0-1.4)")
     (encoding,) = struct.unpack_from("<H", head, 6)
     header_size, point_offset, _vlr_count, point_format, record_length = struct.unpack_from("<HIIBH", head, 94)
+    if header_size < _MIN_HEADER or point_offset < header_size:
+        raise ReadError(
+            f"the LAS header gives a header size of {header_size} bytes and point data at byte {point_offset} "
+            f"(a header needs at least {_MIN_HEADER}, and the points follow it); the header is corrupt"
+        )
     (count,) = struct.unpack_from("<I", head, 107)
     if minor >= 4 and header_size >= _HEADER_14 and len(head) >= _HEADER_14:
         # LAS 1.4 keeps a 64-bit count; the legacy 32-bit one is 0 for point formats 6-10.

@@ -259,6 +259,11 @@ def test_truncated_las_names_the_points_it_holds(tmp_path):
     cut.write_bytes(data[:100])
     with pytest.raises(ReadError, match=r"header is cut short.*truncated"):
         read_input(cut)
+    corrupt = bytearray(data)
+    corrupt[94:96] = struct.pack("<H", 100)  # header size
+    cut.write_bytes(bytes(corrupt))
+    with pytest.raises(ReadError, match="header size of 100 bytes .* corrupt"):
+        read_input(cut)
 
 
 @pytest.mark.parametrize("keep", [0.5, 0.99])
