@@ -44,7 +44,7 @@ _UPLOAD_SCHEMA = {
             "required": ["file"],
             "properties": {
                 "file": {"type": "string", "format": "binary",
-                         "description": "Point cloud (PLY, XYZ/PTS/TXT/CSV, PCD) or mesh (OBJ, STL, PLY with faces)."},
+                         "description": "Point cloud (PLY, XYZ/PTS/TXT/CSV, PCD, E57, LAS/LAZ) or mesh (OBJ, STL, PLY with faces)."},
                 "params": {"type": "string", "description": "JobParams as JSON; omitted groups take defaults."},
             },
         }}},
