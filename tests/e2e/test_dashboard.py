@@ -53,7 +53,8 @@ def _free_port() -> int:
 
 
 class Server:
-    def __init__(self, tmp: Path, *, dwell_s: float | None, worker: bool = True, api_key: str | None = None) -> None:
+    def __init__(self, tmp: Path, *, dwell_s: float | None, worker: bool = True, api_key: str | None = None,
+                 pipeline: str | None = None) -> None:
         self.port = _free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         env = {k: v for k, v in os.environ.items()
@@ -61,6 +62,8 @@ class Server:
         env.update(PYTHONPATH=str(ROOT), CLOUD2CNC_MIN_POINTS="10", PYTHONUNBUFFERED="1")
         if api_key:
             env["CLOUD2CNC_API_KEY"] = api_key
+        if pipeline:
+            env["CLOUD2CNC_PIPELINE"] = pipeline
         if dwell_s is not None:
             env.update(CLOUD2CNC_STAGE_PLUGINS="tests.plugins.dwell", CLOUD2CNC_PIPELINE="ingest,dwell",
                        CLOUD2CNC_TEST_DWELL_S=str(dwell_s))
@@ -110,6 +113,8 @@ SERVER_KINDS = {
     "slow": {"dwell_s": 30},           # a job still running when the test cancels it
     "idle": {"dwell_s": None, "worker": False},  # no worker: jobs stay queued, the list holds what the test made
     "keyed": {"dwell_s": None, "worker": False, "api_key": "s3cret"},  # CLOUD2CNC_API_KEY set
+    # the real CAM stages on a mesh upload (denoise passes a clean mesh on): plan and verify in half a minute
+    "cam": {"dwell_s": None, "pipeline": "ingest,denoise,plan,verify"},
 }
 
 
@@ -555,7 +560,10 @@ def synthetic_artifacts() -> dict[str, bytes]:
             g.append(f"G0 Z{safe}")
     programs[1] += ["G0 X-5 Y0", "G1 Z-1", "G2 X5 Y0 I5 J0", "G0 Z10", "M30"]
     out["toolpath.json"] = json.dumps({"tool": {"shape": "ball", "radius_mm": 3}, "scallop_height_mm": 0.16,
-                                       "setups": [{"id": k, "patches": v} for k, v in setups.items()]}).encode()
+                                       "setups": [{"id": k, "patches": v} for k, v in setups.items()],
+                                       "unmachined": [{"patch": 2, "reason": "too concave for the ball"}],
+                                       "partial": [{"patch": 1, "region": [0, 0.5, 0, 1], "kept": 0.5,
+                                                    "reason": "the rest is beyond reach"}]}).encode()
     out["program.nc"] = ("\n".join(programs[1]) + "\n").encode()
     out["program-setup2.nc"] = ("%\nO0002\n" + "\n".join(programs[2]) + "\n%\n").encode()
     out["toolpath.csv"] = b"setup,patch,pass,x,y,z\n"
@@ -567,14 +575,18 @@ def synthetic_artifacts() -> dict[str, bytes]:
         "target_scallop_mm": 0.16, "tool_radius_mm": 3.0, "certified_scallop_mm": 0.155, "max_scallop_mm": 0.149,
         "p99_scallop_mm": 0.141, "max_gouge_mm": 0.0, "max_rapid_gouge_mm": 0.0, "reachable_share": 0.97,
         "finished_share_of_reachable": 0.995, "min_finished_share": 0.98, "gouge_tolerance_mm": 0.01,
-        "summary": "finished 99.5 % of what a 3 mm ball can reach (97 % of the part)",
-        "unfinished_mm2": {"over_target_mm2": 0.5, "not_reached_mm2": 1.25}, "time_s": 0.8, "passed": True,
+        "finished_share": 0.965, "area_mm2": 2000.0, "max_left_on_reachable_mm": 0.31,
+        "summary": "finished 99.5 % of what a 3 mm ball can reach (97.0 % of the part)",
+        "unfinished_mm2": {"unreachable_by_main_ball_mm2": 60.0, "finished_outside_main_reach_mm2": 0.0,
+                           "left_for_rest_tool_mm2": 0.0, "unreachable_by_any_ball_mm2": 60.0,
+                           "not_planned_mm2": 9.7, "over_target_mm2": 0.5}, "time_s": 0.8, "passed": True,
         "problems": [], "programs": [{"program": "program.nc", "setup": 1, "role": "main", "certified_scallop_mm": 0.155,
                                       "max_gouge_mm": 0.0}]}).encode()
     return out
 
 
-MEDIA = {".ply": "application/x-ply", ".obj": "model/obj", ".json": "application/json", ".nc": "text/x-gcode", ".csv": "text/csv"}
+MEDIA = {".ply": "application/x-ply", ".obj": "model/obj", ".json": "application/json", ".nc": "text/x-gcode", ".csv": "text/csv",
+         ".html": "text/html"}
 STAGE_OF = {"cloud.ply": "ingest", "mesh_raw.ply": "reconstruct", "mesh.ply": "denoise", "quads.obj": "remesh",
             "patches.json": "segment", "segments.ply": "segment", "surfaces.json": "fit", "setup.json": "plan",
             "toolpath.json": "plan", "program.nc": "plan", "program-setup2.nc": "plan", "toolpath.csv": "plan", "scallop.ply": "verify",
@@ -617,8 +629,17 @@ def test_every_3d_view_from_design_artifacts(server, page):
     card.wait_for()
     text = card.inner_text()
     assert "0.149" in text and "0.16" in text and "0.155" in text and "passed" in text and "not passed" not in text
-    assert "finished 99.5 % of what a 3 mm ball can reach" in text and "99.5 %" in text
-    assert "over target" in text.lower() and "not reached" in text.lower() and "program.nc" in text, text
+    assert "finished 99.5 % of what a 3 mm ball can reach (97.0 % of the part)" in text and "96.5 %" in text
+    assert card.get_attribute("data-verdict") == "st-succeeded"
+    assert page.locator("#job-coverage .badge.st-succeeded").inner_text() == "passed"
+    # the unfinished area by reason, in words, and what the plan left, with its reasons
+    reasons = card.locator("table.reasons").inner_text()
+    assert "the 3 mm ball cannot reach it from any setup" in reasons and "60 mm²" in reasons and "3.0 %" in reasons
+    assert "reachable, but no program leaves it within the target" in reasons and "over target" in reasons
+    notes = card.locator(".plan-notes").inner_text()
+    assert "unmachined: patch 2 — too concave for the ball" in notes
+    assert "partial: patch 1 (kept 50.0 % of it) — the rest is beyond reach" in notes
+    assert "program.nc" in text, text
     page.wait_for_selector('.viewport[data-state="ready"]')  # the default view (scallop) is up
     views = ["cloud", "mesh_raw", "mesh", "quads", "patches", "surfaces", "toolpaths", "scallop"]
     for key in views:
@@ -647,7 +668,8 @@ def test_every_3d_view_from_design_artifacts(server, page):
     page.locator('.toggle[data-view="surfaces"]').click()
     page.locator('.toggle[data-view="toolpaths"]').click()
     wait_view(page, "surfaces,toolpaths", before)
-    assert "2 setup(s), 24 passes" in page.locator(".viewer-info").inner_text()
+    info = page.locator(".viewer-info").inner_text()
+    assert "2 setup(s), 24 passes" in info and "the part under them as verify measured it" in info, info
     assert page.locator(".setup-toggles input").count() == 2  # tool paths per setup
     shot(page, "dashboard-job-full", full_page=True)
     # (a routed response cannot become a browser download; the real download is checked on cloud.ply above)
@@ -720,6 +742,133 @@ def test_api_key_is_asked_for_and_used(servers, page):
     assert r.status_code == 202
     page.click("text=Refresh")
     page.wait_for_selector(f'tr[data-job-id="{r.json()["id"]}"]', timeout=10_000)
+
+
+def _little_verify(**change) -> bytes:
+    """verify.json of a job whose programs finish a sliver of the part (what the issue saw: ~5 %)."""
+    doc = {"tool_radius_mm": 3.0, "target_scallop_mm": 0.16, "area_mm2": 2000.0, "reachable_share": 0.06,
+           "finished_share_of_reachable": 1.0, "finished_share": 0.06, "min_finished_share": 0.98,
+           "max_scallop_mm": 0.12, "p99_scallop_mm": 0.1, "max_gouge_mm": 0.0, "max_rapid_gouge_mm": 0.0,
+           "summary": "finished 100.0 % of what a 3 mm ball can reach (6.0 % of the part)",
+           "unfinished_mm2": {"unreachable_by_main_ball_mm2": 1880.0, "finished_outside_main_reach_mm2": 0.0,
+                              "left_for_rest_tool_mm2": 0.0, "unreachable_by_any_ball_mm2": 1880.0,
+                              "not_planned_mm2": 0.0},
+           "passed": True, "problems": [], "programs": []}
+    doc.update(change)
+    return json.dumps(doc).encode()
+
+
+def test_a_job_that_finishes_little_is_not_shown_as_a_success(server, page):
+    setup = json.dumps({"setups": [{"id": 1, "rotation": np.eye(3).tolist(), "translation": [0, 0, 0],
+                                    "program": "program.nc", "unmachined": [{"patch": 4, "reason": "an undercut"}]}]})
+    little = "little" + "0" * 26
+    _route_job(page, little, {"verify.json": _little_verify(), "setup.json": setup.encode()})
+    page.goto(f"{server.base}/#/jobs/{little}")
+    card = page.locator(".verify-card")
+    card.wait_for()
+    assert card.get_attribute("data-verdict") == "st-warn"
+    verdict = page.locator("#verify-verdict")
+    assert verdict.inner_text() == "finishes only 6.0 % of the part" and "st-succeeded" not in verdict.get_attribute("class")
+    head = page.locator("#job-coverage .badge")
+    assert head.inner_text() == "finishes only 6.0 % of the part" and "st-warn" in head.get_attribute("class")
+    text = card.inner_text()
+    assert "finished 100.0 % of what a 3 mm ball can reach (6.0 % of the part)" in text
+    assert "the 3 mm ball cannot reach it from any setup" in text and "94.0 %" in text
+    assert "setup 1, unmachined: patch 4 — an undercut" in text
+    # Below toolpath.min_finished_share of the reachable: red, whatever `passed` says.
+    short = "short" + "0" * 27
+    _route_job(page, short, {"verify.json": _little_verify(finished_share_of_reachable=0.5, finished_share=0.45)})
+    page.goto(f"{server.base}/#/jobs/{short}")
+    page.wait_for_selector('.verify-card[data-verdict="st-failed"]')
+    assert page.locator("#verify-verdict").inner_text() == "finishes 50.0 % of the reachable"
+    failed = "failed" + "0" * 26
+    _route_job(page, failed, {"verify.json": _little_verify(passed=False, problems=["a rapid move cuts 0.3 mm"])})
+    page.goto(f"{server.base}/#/jobs/{failed}")
+    page.wait_for_selector('.verify-card[data-verdict="st-failed"]')
+    assert page.locator("#verify-verdict").inner_text() == "not passed"
+    assert "a rapid move cuts 0.3 mm" in page.locator(".verify-card .problems").inner_text()
+
+
+def _block_stl() -> bytes:
+    """A 26 x 20 x 10 mm block with a 10 x 8 x 6 mm pocket in its top, as ASCII STL."""
+    manifold3d = pytest.importorskip("manifold3d")
+    solid = manifold3d.Manifold.cube([26.0, 20.0, 10.0], center=True) - \
+        manifold3d.Manifold.cube([10.0, 8.0, 6.0], center=True).translate([0, 0, 4])
+    m = solid.to_mesh()
+    V, F = np.asarray(m.vert_properties)[:, :3], np.asarray(m.tri_verts)
+    lines = ["solid block"]
+    for a, b, c in V[F]:
+        n = np.cross(b - a, c - a)
+        n /= np.linalg.norm(n)
+        lines += [f"facet normal {n[0]:.6f} {n[1]:.6f} {n[2]:.6f}", "outer loop",
+                  *(f"vertex {p[0]:.6f} {p[1]:.6f} {p[2]:.6f}" for p in (a, b, c)), "endloop", "endfacet"]
+    return ("\n".join(lines + ["endsolid block"]) + "\n").encode()
+
+
+def test_a_real_job_shows_its_coverage_and_its_setup_sheet(servers, page):
+    """plan and verify for real (a mesh upload): the job page's coverage in words, and report.html from its
+    link, served by the API as a sandboxed page that fetches nothing, with verify.json's numbers on it."""
+    srv = servers("cam")
+    job = srv.upload(_block_stl(), name="block.stl", params={"tool": {"rest_radius_mm": 1.5}})
+    page.goto(f"{srv.base}/#/jobs/{job['id']}")
+    page.wait_for_selector('#job-status .badge:text("succeeded")', timeout=300_000)
+    base = f"{srv.base}/v1/jobs/{job['id']}/artifacts"
+    verify = httpx.get(f"{base}/verify.json").json()
+    card = page.locator(".verify-card")
+    page.wait_for_selector("#verify-verdict")
+    text = card.inner_text()
+    fin, reach = verify["finished_share_of_reachable"], verify["reachable_share"]
+    assert f"finished {100 * fin:.1f} % of what a 3 mm ball can reach ({100 * reach:.1f} % of the part)" in text
+    assert f"{100 * verify['finished_share']:.1f} %" in text
+    assert "the 3 mm ball cannot reach it from any setup" in text  # the block's base sits on the table
+    good = verify["passed"] and fin >= verify["min_finished_share"] and verify["finished_share"] >= 0.5
+    assert card.get_attribute("data-verdict") == ("st-succeeded" if good else "st-warn" if verify["passed"] else "st-failed")
+    # The tool paths over the part as verify measured it (a fresh page starts on the heat map).
+    page.reload()
+    wait_view(page, "scallop")
+    before = rendered(page)
+    page.locator('.toggle[data-view="scallop"]').click()
+    page.locator('.toggle[data-view="toolpaths"]').click()
+    wait_view(page, "toolpaths", before)
+    assert "the part under them as verify measured it" in page.locator(".viewer-info").inner_text()
+    assert canvas_std(page) > PIXEL_STD_MIN
+    shot(page, "dashboard-job-cam", full_page=True)
+
+    r = httpx.get(f"{base}/report.html")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+    assert r.headers["content-disposition"].startswith("inline") and "sandbox" in r.headers["content-security-policy"]
+    requests = []
+    page.context.on("request", lambda req: requests.append(req.url))
+    with page.context.expect_page() as popup:
+        page.click(".verify-card a.sheet-link")
+    sheet = popup.value
+    sheet.wait_for_load_state("load")
+    assert sheet.url == f"{base}/report.html"
+    headings = sheet.locator("h1, h2, h3").all_inner_texts()
+    for want in ("Setup sheet", "The part", "Tools", "Programs", "Certificate", "Coverage", "Unfinished areas",
+                 "Setup 1"):
+        assert want in headings, headings
+    values = sheet.evaluate("() => [...document.querySelectorAll('[data-key]')].map(e => [e.dataset.key, Number(e.dataset.value)])")
+    shown = {k for k, _ in values}
+    assert {"finished_share_of_reachable", "reachable_share", "target_scallop_mm", "certified_scallop_mm",
+            "max_scallop_mm", "not_planned_mm2", "unreachable_by_main_ball_mm2", "machining_min"} <= shown, shown
+    for key, v in values:
+        want = verify.get(key, verify["unfinished_mm2"].get(key))
+        if want is not None:
+            assert v == want, key
+    body = sheet.locator("body").inner_text()
+    assert f"finished {100 * fin:.1f} %" in body and "main ball" in body and "rest ball" in body
+    assert "program.nc" in body and "air moves" in body
+    html = sheet.content()
+    assert not re.search(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:)?//""", html), "the sheet links out"
+    assert not re.search(r"https?://", html) and "<script" not in html
+    assert sheet.locator("svg").count() >= 4  # the part, its coverage from above and below, a setup on its table
+    assert all(u.startswith(srv.base) for u in requests), requests
+    pdf = sheet.pdf(format="A4", print_background=True)  # printable: A4, a few pages
+    pages = len(re.findall(rb"/Type\s*/Page[^s]", pdf))
+    assert 1 <= pages <= 4, pages
+    shot(sheet, "report", full_page=True)
+    sheet.close()
 
 
 def test_three_is_vendored_with_its_licence(server):

@@ -8,6 +8,8 @@ import { ViewerPanel } from "./panel.js";
 import { ACTIVE, formatBytes, formatDuration, formatNumber, formatTime, h, progressBar, statusBadge, toast } from "./util.js";
 
 const POLL_MS = 1000;
+/** toolpath.json is read for the plan's `partial` / `unmachined` notes only up to this size (it holds every pass). */
+const TOOLPATH_JSON_MAX = 8 * 1024 * 1024;
 
 function first(obj, keys) {
   for (const k of keys) {
@@ -17,9 +19,74 @@ function first(obj, keys) {
   return undefined;
 }
 
-/** verify.json: what the programs leave on the part (mesh.ply): reachable share, finished share of it, largest
- * scallop, gouges, and the unfinished area by reason; field names are read tolerantly. */
-function verifyCard(doc, params) {
+/** A job that finishes less than this share of its part is not shown as a success, whatever verify's own
+ * criteria (which judge the share of what the ball can reach) say: the base and undercuts may be most of it. */
+export const LITTLE_SHARE = 0.5;
+
+const pctText = (v) => `${(100 * v).toFixed(1)} %`; // as verify.json's summary writes it
+
+/** One verdict on how much of the part the programs finish: verify's pass/fail, its finished share of the
+ * reachable against toolpath.min_finished_share, and the finished share of the whole part. */
+export function coverageVerdict(doc, params) {
+  if (!doc || typeof doc !== "object") return null;
+  const fin = doc.finished_share_of_reachable, whole = doc.finished_share;
+  const min = doc.min_finished_share ?? params?.toolpath?.min_finished_share;
+  if (doc.passed === false) return { cls: "st-failed", text: "not passed" };
+  if (typeof fin === "number" && typeof min === "number" && fin < min) {
+    return { cls: "st-failed", text: `finishes ${pctText(fin)} of the reachable` };
+  }
+  if (typeof whole === "number" && whole < LITTLE_SHARE) {
+    return { cls: "st-warn", text: `finishes only ${pctText(whole)} of the part` };
+  }
+  return doc.passed === true ? { cls: "st-succeeded", text: "passed" } : null;
+}
+
+/** verify.json's unfinished area by reason, nested as verify measures it, in words, with shares of the part. */
+function reasonRows(doc, params) {
+  const un = { ...(doc.unfinished_mm2 || {}) };
+  const total = typeof doc.area_mm2 === "number" && doc.area_mm2 > 0 ? doc.area_mm2 : null;
+  const rest = doc.rest_radius_mm ?? params?.tool?.rest_radius_mm;
+  const rows = [];
+  const row = (key, label, sub = false) => {
+    const v = un[key];
+    delete un[key];
+    if (typeof v !== "number") return;
+    rows.push(h(`tr${sub ? ".sub" : ""}`, { dataset: { reason: key } }, h("th", { scope: "row" }, sub ? `… ${label}` : label),
+      h("td.num", `${formatNumber(v)} mm²`), h("td.num", total ? pctText(v / total) : "")));
+  };
+  row("not_planned_mm2", "reachable, but no program leaves it within the target");
+  row("unreachable_by_main_ball_mm2", `the ${formatNumber(doc.tool_radius_mm ?? params?.tool?.radius_mm)} mm ball cannot reach it from any setup`);
+  row("finished_outside_main_reach_mm2", "of which finished all the same", true);
+  if (rest) row("left_for_rest_tool_mm2", "of which the rest ball reaches, but no program finishes", true);
+  else delete un.left_for_rest_tool_mm2;
+  row("unreachable_by_any_ball_mm2", rest ? "of which no ball of this job reaches" : "of which no ball reaches (no rest ball is set)", true);
+  for (const key of Object.keys(un)) row(key, key.replace(/_mm2$/, "").replaceAll("_", " "));
+  return rows;
+}
+
+/** The plan's `unmachined` and `partial` entries (setup.json, toolpath.json; top level and per setup), as words. */
+export function planNotes(...docs) {
+  const seen = new Set(), out = [];
+  const add = (where, kind, item) => {
+    const text = item && typeof item === "object"
+      ? `${item.patch !== undefined ? `patch ${item.patch}` : ""}${typeof item.kept === "number" ? ` (kept ${pctText(item.kept)} of it)` : ""}${item.reason ? ` — ${item.reason}` : ""}`
+      : String(item);
+    const key = `${kind}|${text}`;
+    if (seen.has(key)) return;
+    seen.add(key);
+    out.push({ where, kind, text: text.replace(/^ — /, "") });
+  };
+  for (const doc of docs) {
+    if (!doc || typeof doc !== "object") continue;
+    for (const kind of ["unmachined", "partial"]) for (const it of doc[kind] || []) add("plan", kind, it);
+    for (const s of doc.setups || []) for (const kind of ["unmachined", "partial"]) for (const it of s[kind] || []) add(`setup ${s.id}`, kind, it);
+  }
+  return out;
+}
+
+/** verify.json: what the programs leave on the part (mesh.ply) — the finished share of what the ball can reach
+ * first, in words, then the unfinished area by reason and what the plan left (`unmachined`, `partial`). */
+function verifyCard(doc, params, notes, report) {
   const target = first(doc, ["target_scallop_mm", "target_mm", "scallop_target_mm", "scallop_height_mm"]) ?? params?.toolpath?.scallop_height_mm;
   const max = first(doc, ["max_scallop_mm", "scallop.max_mm", "scallop_max_mm"]);
   const p99 = first(doc, ["p99_scallop_mm", "scallop.p99_mm", "scallop_p99_mm"]);
@@ -28,43 +95,51 @@ function verifyCard(doc, params) {
   const rapidGouge = first(doc, ["max_rapid_gouge_mm"]);
   const reachable = first(doc, ["reachable_share"]);
   const finished = first(doc, ["finished_share_of_reachable"]);
-  const reached = first(doc, ["reached_fraction", "machined_fraction", "coverage"]);
-  const uncut = first(doc, ["uncut_area_mm2", "uncut.area_mm2"]);
+  const whole = first(doc, ["finished_share"]);
+  const largest = first(doc, ["max_left_on_reachable_mm"]);
   const minShare = first(doc, ["min_finished_share"]) ?? params?.toolpath?.min_finished_share;
   const gougeTol = first(doc, ["gouge_tolerance_mm"]) ?? params?.toolpath?.gouge_tolerance_mm ?? 1e-3;
+  const radius = first(doc, ["tool_radius_mm"]) ?? params?.tool?.radius_mm;
   const within = typeof max === "number" && typeof target === "number" ? max <= target * (1 + 1e-6) + 1e-9 : undefined;
-  const passed = typeof doc.passed === "boolean" ? doc.passed : within;
+  const verdict = coverageVerdict(doc, params);
   const problems = Array.isArray(doc.problems) ? doc.problems : [];
-  const pct = (v) => (typeof v === "number" ? `${formatNumber(v <= 1 ? v * 100 : v, 4)} %` : v);
   const tile = (label, value, unit, cls = "") => h(`div.metric${cls}`, h("div.metric-label", label),
-    h("div.metric-value", value === undefined ? "—" : typeof value === "number" ? formatNumber(value) : String(value),
+    h("div.metric-value", value === undefined || value === null ? "—" : typeof value === "number" ? formatNumber(value) : String(value),
       unit && typeof value === "number" ? h("span.unit", ` ${unit}`) : null));
-  const verdict = passed === undefined ? null : passed ? h("span.badge.st-succeeded", "passed")
-    : h("span.badge.st-failed", "not passed");
-  const scalars = Object.entries(doc).filter(([, v]) => ["number", "string", "boolean"].includes(typeof v));
-  const reasons = doc.unfinished_mm2 && typeof doc.unfinished_mm2 === "object" ? Object.entries(doc.unfinished_mm2) : [];
   const programs = Array.isArray(doc.programs) ? doc.programs : Array.isArray(doc.setups) ? doc.setups : [];
   const finishedBad = typeof finished === "number" && typeof minShare === "number" && finished < minShare;
-  return h("section.card.verify-card", { "aria-labelledby": "verify-title" },
-    h("div.card-head", h("h2#verify-title", "Verification"), verdict),
-    typeof doc.summary === "string" ? h("p.verify-summary", doc.summary) : null,
+  const wholeCls = typeof whole === "number" ? (whole < LITTLE_SHARE ? ".warn" : "") : "";
+  const headline = typeof finished === "number"
+    ? `finished ${pctText(finished)} of what a ${formatNumber(radius)} mm ball can reach`
+      + (typeof reachable === "number" ? ` (${pctText(reachable)} of the part)` : "")
+    : typeof doc.summary === "string" ? doc.summary : null;
+  const reasons = reasonRows(doc, params);
+  return h("section.card.verify-card", { "aria-labelledby": "verify-title", dataset: { verdict: verdict?.cls || "" } },
+    h("div.card-head", h("h2#verify-title", "Verification"),
+      verdict ? h(`span.badge.${verdict.cls}#verify-verdict`, verdict.text) : null,
+      report ? h("a.sheet-link", report, "Setup sheet") : null),
+    headline ? h("p.verify-summary", headline) : null,
+    typeof doc.summary === "string" && doc.summary !== headline ? h("p.small.muted", doc.summary) : null,
     h("div.metrics",
-      finished !== undefined ? tile("Finished of reachable", pct(finished), "", finishedBad ? ".bad" : ".good") : null,
-      reachable !== undefined ? tile("Reachable by the ball", pct(reachable)) : null,
-      tile("Max scallop", max, "mm", within === false ? ".bad" : within ? ".good" : ""),
+      finished !== undefined ? tile("Finished of reachable", pctText(finished), "", finishedBad ? ".bad" : ".good") : null,
+      reachable !== undefined ? tile(`Reachable by the ${formatNumber(radius)} mm ball`, pctText(reachable)) : null,
+      whole !== undefined ? tile("Finished of the part", pctText(whole), "", wholeCls) : null,
+      tile("Max scallop (finished)", max, "mm", within === false ? ".bad" : ""),
       tile("Target", target, "mm"),
+      largest !== undefined ? tile("Largest left (reachable)", largest, "mm", typeof largest === "number" && typeof target === "number" && largest > target ? ".bad" : "") : null,
       certified !== undefined && certified !== null ? tile("Certified bound", certified, "mm") : null,
       tile("p99 scallop", p99, "mm"),
-      reached !== undefined ? tile("Reached", pct(reached)) : null,
       tile("Gouge", gouge, "mm", typeof gouge === "number" && gouge > gougeTol ? ".bad" : ""),
-      rapidGouge !== undefined ? tile("Rapid gouge", rapidGouge, "mm", rapidGouge > gougeTol ? ".bad" : "") : null,
-      uncut !== undefined ? tile("Uncut area", uncut, "mm²") : null),
-    reasons.length ? h("table.kv", h("caption", "Not finished, by reason"), h("tbody", reasons.map(([k, v]) => h("tr",
-      h("th", { scope: "row" }, k.replace(/_mm2$/, "").replaceAll("_", " ")),
-      h("td", typeof v === "number" ? `${formatNumber(v)} mm²` : String(v)))))) : null,
+      rapidGouge !== undefined ? tile("Rapid gouge", rapidGouge, "mm", rapidGouge > gougeTol ? ".bad" : "") : null),
+    reasons.length ? h("table.kv.reasons", h("caption", "Not finished, by reason"),
+      h("thead", h("tr", h("th", { scope: "col" }, "Reason"), h("th", { scope: "col" }, "Area"), h("th", { scope: "col" }, "Of the part"))),
+      h("tbody", reasons)) : null,
+    notes.length ? h("div.plan-notes", h("h3", "Left by the plan"), h("ul", notes.map((n) =>
+      h("li", { dataset: { kind: n.kind } }, h("strong", `${n.where}, ${n.kind}: `), n.text)))) : null,
     problems.length ? h("ul.problems", problems.map((p) => h("li.error-text", String(p)))) : null,
     h("details", h("summary", "All figures"), h("table.kv", h("tbody",
-      scalars.map(([k, v]) => h("tr", h("th", { scope: "row" }, k), h("td", typeof v === "number" ? formatNumber(v, 6) : String(v))))))),
+      Object.entries(doc).filter(([, v]) => ["number", "string", "boolean"].includes(typeof v))
+        .map(([k, v]) => h("tr", h("th", { scope: "row" }, k), h("td", typeof v === "number" ? formatNumber(v, 6) : String(v))))))),
     programs.length ? h("table.kv", h("caption", "Per program"), h("tbody", programs.map((s) => h("tr",
       h("th", { scope: "row" }, `${s.program ?? `setup ${s.setup}`}`),
       h("td", Object.entries(s).filter(([, v]) => typeof v === "number").map(([k, v]) => `${k} ${formatNumber(v)}`).join(", ")))))) : null);
@@ -158,13 +233,14 @@ export function jobView(id, root) {
   const rerunBtn = h("button#rerun-job", { type: "button", "aria-expanded": "false", onclick: () => openRerun() }, "Rerun…");
   const deleteBtn = h("button.danger#delete-job", { type: "button", onclick: () => doDelete() }, "Delete");
   const headInfo = h("div");
+  const coverageSlot = h("span#job-coverage");
   head.append(headInfo, h("div.actions", cancelBtn, rerunBtn, deleteBtn));
 
   function renderHead() {
     cancelBtn.disabled = !ACTIVE.has(job.status);
     rerunBtn.setAttribute("aria-expanded", String(Boolean(rerunSlot.firstChild)));
     headInfo.replaceChildren(...[
-      h("div.card-head", h("h1", job.input.name), h("span#job-status", statusBadge(job.status))),
+      h("div.card-head", h("h1", job.input.name), h("span.badges", h("span#job-status", statusBadge(job.status)), coverageSlot)),
       progressBar(job.progress, { label: "job progress", status: job.status }),
       h("p.meta",
         h("span", "Job ", h("code", { title: "job id" }, job.id)),
@@ -178,11 +254,31 @@ export function jobView(id, root) {
     document.title = `${job.input.name} · ${job.status} · cloud2cnc`;
   }
 
+  /** The setup sheet's link: opened in a new tab (through a fetch with the key when the API needs one). */
+  function reportLink() {
+    const a = job.artifacts.find((x) => x.name === "report.html");
+    if (!a) return null;
+    const needKey = Boolean(apiKey());
+    return { href: a.url, target: "_blank", rel: "noopener", title: "report.html: tools, programs, times, coverage (printable)",
+      onclick: needKey ? (e) => {
+        e.preventDefault();
+        fetchArtifact(a.url).then((buf) => {
+          const href = URL.createObjectURL(new Blob([buf], { type: "text/html" }));
+          window.open(href, "_blank", "noopener");
+          setTimeout(() => URL.revokeObjectURL(href), 60000);
+        }).catch((err) => toast(err.message, "error"));
+      } : undefined };
+  }
+
   async function renderSummaries() {
-    const [verify, ingest] = await Promise.all([smallJson("verify.json"), smallJson("ingest.json")]);
+    const tp = job.artifacts.find((x) => x.name === "toolpath.json");
+    const [verify, ingest, setup, toolpath] = await Promise.all([smallJson("verify.json"), smallJson("ingest.json"),
+      smallJson("setup.json"), tp && tp.size_bytes <= TOOLPATH_JSON_MAX ? smallJson("toolpath.json") : null]);
     if (destroyed) return;
-    verifySlot.replaceChildren(verify ? verifyCard(verify, job.params) : "");
+    verifySlot.replaceChildren(verify ? verifyCard(verify, job.params, planNotes(setup, toolpath), reportLink()) : "");
     ingestSlot.replaceChildren(ingest ? ingestCard(ingest) : "");
+    const verdict = coverageVerdict(verify, job.params);
+    coverageSlot.replaceChildren(verdict ? h(`span.badge.${verdict.cls}`, { title: "what verify measured on the part" }, verdict.text) : "");
   }
 
   let lastJob = "", lastArts = "", lastParams = "";

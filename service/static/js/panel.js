@@ -101,13 +101,15 @@ export class ViewerPanel {
     }
     this.rapids = h("input", { type: "checkbox", id: "show-rapids", checked: true,
       onchange: () => this._applySubToggles() });
+    this.partBox = h("input", { type: "checkbox", id: "show-part", checked: true,
+      onchange: () => this._applySubToggles() });
     this.setupBox = h("span.setup-toggles");
     this.hiddenSetups = new Set();
     this.tools = h("div.toolbar.secondary", { role: "toolbar", "aria-label": "View" },
       h("button", { type: "button", onclick: () => this.viewer?.fit(), title: "Frame everything shown (F)" }, "Fit view"),
       h("button", { type: "button", onclick: () => this.viewer?.zoom(0.8), "aria-label": "Zoom in" }, "+"),
       h("button", { type: "button", onclick: () => this.viewer?.zoom(1.25), "aria-label": "Zoom out" }, "−"),
-      h("label.check", this.rapids, " rapids"), this.setupBox);
+      h("label.check", this.rapids, " rapids"), h("label.check", this.partBox, " part under the paths"), this.setupBox);
     this.el = h("section.card.viewer-card", { "aria-labelledby": "viewer-title" },
       h("h2#viewer-title", "3D view"), this.toolbar, this.tools, this.viewport, this.info);
     if (!this.webgl) this._noWebgl("3D views need WebGL, which this browser does not offer. Progress, results and downloads still work.");
@@ -150,7 +152,7 @@ export class ViewerPanel {
     const names = {
       cloud: ["cloud.ply"], mesh_raw: ["mesh_raw.ply"], mesh: ["mesh.ply"], quads: ["quads.obj"],
       patches: ["quads.obj", "patches.json", "segments.ply"], surfaces: ["surfaces.json"],
-      toolpaths: ["toolpath.json", "setup.json", ...programNames(this.arts)], scallop: ["scallop.ply"],
+      toolpaths: ["toolpath.json", "setup.json", ...programNames(this.arts), "scallop.ply", "mesh.ply"], scallop: ["scallop.ply"],
     }[key];
     return names.map((n) => this.arts.get(n)?.sha256 || "").join(",");
   }
@@ -319,6 +321,8 @@ export class ViewerPanel {
         gcode.push({ setup, parsed, fallbackCuts: !pathSetups.has(setup) });
       }
       const object = m.toolpathsLayer({ toolpath, setups, gcode });
+      const under = await this._partUnder(label);
+      if (under) object.add(under.object);
       let passes = 0;
       const certified = [];
       for (const s of toolpath?.setups || []) {
@@ -331,7 +335,9 @@ export class ViewerPanel {
       const setupIds = [...new Set([...(toolpath?.setups || []).map((s) => s.id), ...gcode.map((g) => g.setup)])];
       return { object, setups: setupIds.length > 1 ? setupIds : null, info: `${Math.max(setups.length, (toolpath?.setups || []).length, 1)} setup(s), ${formatNumber(passes)} passes`
         + `${certified.length ? `, certified scallop ≤ ${formatNumber(Math.max(...certified))} mm` : ""}`
-        + `${gcode.length ? `, ${formatNumber(rapids)} rapid moves (dashed) from ${programs.join(", ")}` : ""}` };
+        + `${gcode.length ? `, ${formatNumber(rapids)} rapid moves (dashed) from ${programs.join(", ")}` : ""}`
+        + `${under ? `; the part under them${under.coloured ? " as verify measured it: green finished, amber over "
+          + "target, red not cut, grey unreachable" : ""}` : ""}` };
     }
     if (key === "scallop") {
       const buf = await this._bytes("scallop.ply", label);
@@ -361,6 +367,19 @@ export class ViewerPanel {
     throw new Error(`no view ${key}`);
   }
 
+  /** The part to draw under the tool paths: scallop.ply (coloured by coverage) or else mesh.ply; null if neither. */
+  async _partUnder(label) {
+    const name = ["scallop.ply", "mesh.ply"].find((n) => this.arts.has(n));
+    if (!name) return null;
+    const buf = await this._bytes(name, label);
+    const geo = await parse("ply", buf);
+    if (!geo.tris) return null;
+    const field = Object.keys(geo.scalars || {}).find((n) => /scallop/i.test(n));
+    const target = this.job.params?.toolpath?.scallop_height_mm;
+    const coloured = Boolean(field) && typeof target === "number";
+    return { object: this.mod.partUnderLayer(geo, coloured ? geo.scalars[field] : null, target), coloured };
+  }
+
   _setupToggles(ids) {
     this.setupBox.replaceChildren(...(ids || []).map((id) => h("label.check", h("input", { type: "checkbox",
       checked: !this.hiddenSetups.has(id), onchange: (e) => {
@@ -374,7 +393,9 @@ export class ViewerPanel {
     if (!obj) return;
     obj.traverse((o) => {
       if (!o.userData?.kind) return;
-      o.visible = !this.hiddenSetups.has(o.userData.setup) && (o.userData.kind !== "rapids" || this.rapids.checked);
+      // the part under the paths gives way to the heat map, which draws the same surface
+      o.visible = o.userData.kind === "part" ? this.partBox.checked && !this.state.get("scallop")?.on
+        : !this.hiddenSetups.has(o.userData.setup) && (o.userData.kind !== "rapids" || this.rapids.checked);
     });
     this.viewer.requestRender();
   }

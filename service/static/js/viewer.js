@@ -310,6 +310,29 @@ export function toolpathsLayer({ toolpath, setups, gcode }) {
   return group;
 }
 
+/** The setup sheet's coverage colours (cam/verify/report.py): finished, over target, not cut, unreachable. */
+export const COVERAGE_COLORS = [[0.23, 0.66, 0.36], [0.95, 0.66, 0.1], [0.84, 0.27, 0.27], [0.55, 0.6, 0.66]];
+
+/** The part under the tool paths, see-through: coloured by what verify measured (scallop.ply's values, NaN
+ * unreachable, negative never cut) when `values` is given, else plain. */
+export function partUnderLayer(geo, values, target) {
+  let vertexColor = null;
+  if (values && typeof target === "number") {
+    const n = geo.positions.length / 3;
+    vertexColor = new Float32Array(n * 3);
+    for (let i = 0; i < n; i++) {
+      const v = values[i];
+      const k = Number.isNaN(v) ? 3 : v < 0 ? 2 : v <= target * (1 + 1e-9) ? 0 : 1;
+      vertexColor.set(COVERAGE_COLORS[k], 3 * i);
+    }
+  }
+  const mesh = meshLayer(geo, vertexColor ? { vertexColor } : { color: 0xc9d6e3 });
+  Object.assign(mesh.material, { transparent: true, opacity: 0.5, depthWrite: false });
+  mesh.renderOrder = -1;
+  mesh.userData = { kind: "part" };
+  return mesh;
+}
+
 /** scallop.ply as a heat map: the scalar per vertex mapped over [lo, hi] mm; NaN or negative = not reached. */
 export function heatmapLayer(geo, values, lo, hi) {
   const n = geo.positions.length / 3;
