@@ -26,6 +26,7 @@ the knots as their distinct values with multiplicities. Our surfaces are polynom
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -40,6 +41,9 @@ SCHEMA = "AUTOMOTIVE_DESIGN { 1 0 10303 214 1 1 1 1 }"
 _WIDTH = 80
 #: Distance below which two points are one to a reader (LENGTH_MEASURE, mm); the fit's C0 is far finer.
 _UNCERTAINTY_MM = 1e-6
+#: Text up to and including the next comma or closing parenthesis outside a string ('' inside a string
+#: reads as two strings side by side, which is the same split).
+_PIECE = re.compile(r"(?:'[^']*'|[^,)'])+[,)]?|[,)]")
 
 
 def write_step(path: str | os.PathLike[str], surfaces: Sequence, *, labels: Sequence[int] | None = None,
@@ -196,8 +200,9 @@ def _add_face_shell(data: _Data, surf, name: str) -> int:
         if np.any(knots[:degree + 1] != knots[0]) or np.any(knots[-degree - 1:] != knots[-1]):
             # The border edges are the net's outer rows only when the knots are clamped.
             raise ValueError(f"{name}: knots in {axis} must be clamped (first and last {degree + 1} equal)")
-    points = np.array([[data.add(f"CARTESIAN_POINT('',({_reals(cp[i, j])}))") for j in range(nv)]
-                       for i in range(nu)])
+    coords = [_finite_real(x) for x in cp.reshape(-1).tolist()]  # finite: checked above
+    points = np.array([data.add(f"CARTESIAN_POINT('',({','.join(coords[3 * k:3 * k + 3])}))")
+                       for k in range(nu * nv)]).reshape(nu, nv)
     net = ",".join(f"({_refs(row)})" for row in points)
     u_closed, v_closed = _logical(np.array_equal(cp[0], cp[-1])), _logical(np.array_equal(cp[:, 0], cp[:, -1]))
     surface = data.add(f"B_SPLINE_SURFACE_WITH_KNOTS({_string(name)},{p},{q},({net}),.UNSPECIFIED.,{u_closed},"
@@ -240,7 +245,10 @@ def _refs(ids) -> str:
 
 
 def _reals(values) -> str:
-    return ",".join(_real(x) for x in np.ravel(values))
+    values = np.ravel(values)
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"STEP cannot store {values[~np.isfinite(values)][0]}")
+    return ",".join(map(_finite_real, values.tolist()))
 
 
 def _real(x: float) -> str:
@@ -248,6 +256,10 @@ def _real(x: float) -> str:
     x = float(x)
     if not np.isfinite(x):
         raise ValueError(f"STEP cannot store {x}")
+    return _finite_real(x)
+
+
+def _finite_real(x: float) -> str:
     mantissa, _, exponent = repr(x).upper().partition("E")
     if "." not in mantissa:
         mantissa += "."
@@ -274,16 +286,10 @@ def _string(text: str) -> str:
 def _wrap(text: str) -> list[str]:
     """An entity's text broken into lines of at most `_WIDTH` characters after commas or closing
     parentheses outside strings (Part 21 allows white space between tokens; a longer token stays whole)."""
-    pieces, start, in_string = [], 0, False
-    for i, ch in enumerate(text):
-        if ch == "'":
-            in_string = not in_string
-        elif ch in ",)" and not in_string:
-            pieces.append(text[start:i + 1])
-            start = i + 1
-    pieces.append(text[start:])
+    if len(text) <= _WIDTH:
+        return [text]
     lines, current = [], ""
-    for piece in pieces:
+    for piece in _PIECE.findall(text):
         if current and len(current) + len(piece) > _WIDTH:
             lines.append(current)
             current = ""

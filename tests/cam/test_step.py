@@ -233,4 +233,21 @@ def test_patches_our_fitter_made_evaluate_as_ours(tmp_path):
     assert clean and lengths == ["millimetre"] and len(faces) == 2
     _assert_same_surfaces(theirs, surfaces)
     assert _normals(faces, surfaces) == [pytest.approx(1.0)] * 2
+    # Their shared border (C0 to 1e-9 mm) is one edge to a CAD kernel that sews them: 8 free edges become
+    # 6, one pair joined.
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
 
+    sewing = BRepBuilderAPI_Sewing(1e-6)
+    for face in faces:
+        sewing.Add(face)
+    sewing.Perform()
+    assert (sewing.NbFreeEdges(), sewing.NbContigousEdges()) == (6, 1)
+
+
+
+def test_the_service_serves_it_as_model_step():
+    from core.stages import STAGES
+    from service.present import media_type
+
+    assert "surfaces.step" in next(s for s in STAGES if s.name == "fit").outputs
+    assert media_type("surfaces.step") == "model/step"  # the IANA media type of ISO 10303-21 files
