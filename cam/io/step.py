@@ -187,7 +187,7 @@ def _add_face_shell(data: _Data, surf, name: str) -> int:
     kv = np.asarray(surf.knots_v, dtype=np.float64)
     cp = np.asarray(surf.control_points, dtype=np.float64)
     if cp.ndim != 3 or cp.shape[2] != 3:
-        raise ValueError(f"control points must have shape (nu, nv, 3), got {cp.shape}")
+        raise ValueError(f"{name}: control points must have shape (nu, nv, 3), got {cp.shape}")
     if not np.all(np.isfinite(cp)):
         raise ValueError(f"{name}: control points contain NaN or Inf")
     nu, nv = cp.shape[:2]
