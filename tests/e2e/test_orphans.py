@@ -205,6 +205,8 @@ def test_serve_killed_hard_leaves_no_worker_and_a_restart_finishes_the_stage_onc
         assert stage["status"] == "succeeded" and stage["attempts"] == 2, stage
         assert _stage(job, "ingest")["attempts"] == 1
         assert [line.split()[0] for line in runs.read_text().splitlines()] == [job["id"]]
+        # The killed run's scratch folder went when the new worker started; the finished run removed its own.
+        assert list((data / "work").iterdir()) == []
         procs = psutil.Process(serve.pid).children(recursive=True)
     finally:
         serve.send_signal(signal.SIGTERM)
