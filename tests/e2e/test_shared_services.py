@@ -12,7 +12,14 @@ import uuid
 import pytest
 from sqlalchemy import create_engine, text
 
-from tests.conftest import PG_ADMIN, REDIS_TEST_PREFIX, REDIS_URL, delete_redis_keys, wait_for, xyz_bytes
+from tests.conftest import (
+    PG_ADMIN,
+    REDIS_TEST_PREFIX,
+    REDIS_URL,
+    delete_redis_keys,
+    wait_for,
+    xyz_bytes,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -75,7 +82,7 @@ def test_the_redis_cleanup_refuses_a_prefix_that_is_not_a_tests():
 
 def test_the_postgres_database_is_the_tests_own_and_is_dropped():
     pytest.importorskip("psycopg")
-    from tests.conftest import _postgres_database, _port_open
+    from tests.conftest import _port_open, _postgres_database
 
     if not _port_open(5432):
         pytest.skip("needs PostgreSQL on 127.0.0.1:5432")
