@@ -363,9 +363,9 @@ def render_report(*, title: str, verify: dict, setup_doc: dict, setups: list[Set
     for entry, setup in zip(setup_doc.get("setups", []), setups):
         axis = entry.get("tool_axis") or setup.tool_axis_part.tolist()
         mine = [p for p in programs if p.setup == setup.id]
-        rows = [("tool axis (part frame)", "(" + ", ".join(f"{a:+.3f}" for a in axis) + ")"),
-                ("rotation (part → machine)", "<br>".join(" ".join(f"{x:+.3f}" for x in row) for row in setup.rotation)),
-                ("translation", " ".join(f"{x:+.2f}" for x in setup.translation) + " mm"),
+        rows = [("tool axis (part frame)", "(" + ", ".join(f"{a + 0.0:+.3f}" for a in np.round(axis, 3)) + ")"),
+                ("rotation (part → machine)", "<br>".join(" ".join(f"{x + 0.0:+.3f}" for x in row) for row in np.round(setup.rotation, 3))),
+                ("translation", " ".join(f"{x + 0.0:+.2f}" for x in np.round(setup.translation, 2)) + " mm"),
                 ("base", f"the part's lowest point on the table: machine Z = "
                          f"{float(setup.to_machine(V)[:, 2].min()):.2f} mm" if len(V) else "—"),
                 ("programs", ", ".join(f"<code>{escape(p.name)}</code> ({_minutes(p.total_min)})" for p in mine) or "—"),
