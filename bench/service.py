@@ -20,7 +20,7 @@ What it does
 5. API latency while a stage computes: `cloud2cnc serve` with its embedded worker, `GET /v1/jobs/{id}` paced
    (a dashboard's polling) while the worker is idle and while it runs the README example's `fit` on the same
    CPUs, once with the worker niced (CLOUD2CNC_WORKER_NICE=10, the default) and once not (0).
-   `python bench/service.py --only busy` (about 3 minutes) runs this part alone and replaces its section of
+   `python bench/service.py --only busy` (3-6 minutes, most of it waiting for the job to reach fit) runs this part alone and replaces its section of
    bench/results/service.md, leaving the rest as it was.
 
 The module is named service.py: it must not `import service` (that would find itself); it talks to the
@@ -578,6 +578,12 @@ def render_busy(runs: list[dict], args, m: dict, machine_line: str, load_before:
             out.append(f"| {label} | {phase} | {stages} | {r['ok']} / {r['sent']} | {_ms(r['p50'])} | "
                        f"{_ms(r['p99'])} | {_ms(r['max'])} | {r['worker_cores']:.2f} | {r['machine_cpu_pct']:.0f} | "
                        f"{_ms(r['cpu_ms'], 2)} | {ratio} | {verdict} |")
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if max(load_before[0], load_after[0]) > cpus:
+        out += ["", (f"**Other work saturated the machine during this run** (load average up to "
+                     f"{max(load_before[0], load_after[0]):.1f} on {cpus} CPUs): the idle rows are not idle, the "
+                     f"stage got only the worker CPU shown, and the ratios measure that other work more than the "
+                     f"worker; what niceness changes shows only on a machine that is otherwise quiet.")]
     notes = [f"niceness {run['nice']} {ph}: {_notes(run[ph], 200)}" for run in runs for ph in ("idle", "busy")
              if _notes(run[ph], 200)]
     if notes:
