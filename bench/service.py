@@ -20,8 +20,8 @@ What it does
 5. API latency while a stage computes: `cloud2cnc serve` with its embedded worker, `GET /v1/jobs/{id}` paced
    (a dashboard's polling) while the worker is idle and while it runs the README example's `fit` on the same
    CPUs, once with the worker niced (CLOUD2CNC_WORKER_NICE=10, the default) and once not (0).
-   `python bench/service.py --only busy` (3-6 minutes, most of it waiting for the job to reach fit) runs this part alone and replaces its section of
-   bench/results/service.md, leaving the rest as it was.
+   `python bench/service.py --only busy` (3-6 minutes, most of it waiting for the job to reach fit) runs this
+   part alone and replaces its section of bench/results/service.md, leaving the rest as it was.
 
 The module is named service.py: it must not `import service` (that would find itself); it talks to the
 service over HTTP only.
