@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Arrow", "Plane", "simplify_mesh", "render_svg", "view_basis"]
+__all__ = ["Arrow", "Plane", "is_closed", "render_svg", "simplify_mesh", "view_basis"]
 
 
 @dataclass(frozen=True)
@@ -66,13 +66,16 @@ def simplify_mesh(vertices: np.ndarray, faces: np.ndarray, *, max_faces: int) ->
     diagonal = float(np.linalg.norm(V.max(axis=0) - lo)) or 1.0
 
     def cluster(cells: float):
-        key = np.floor((V - lo) / (diagonal / cells)).astype(np.int64)
-        _, inverse = np.unique(key, axis=0, return_inverse=True)
+        cell = np.floor((V - lo) / (diagonal / cells)).astype(np.int64)
+        n = int(cell.max()) + 1
+        _, inverse = np.unique((cell[:, 0] * n + cell[:, 1]) * n + cell[:, 2], return_inverse=True)  # one sort key
         inverse = inverse.reshape(-1)
         G = inverse[F]
         ok = (G[:, 0] != G[:, 1]) & (G[:, 1] != G[:, 2]) & (G[:, 0] != G[:, 2])
         src = np.flatnonzero(ok)
-        _, first = np.unique(np.sort(G[ok], axis=1), axis=0, return_index=True)
+        T = np.sort(G[ok], axis=1)
+        m = int(len(V))
+        _, first = np.unique((T[:, 0] * m + T[:, 1]) * m + T[:, 2], return_index=True)
         src = np.sort(src[first])
         return inverse, G[src], src
 
@@ -126,7 +129,7 @@ def _hex(rgb: np.ndarray) -> list[str]:
     return [f"#{r:02x}{g:02x}{b:02x}" for r, g, b in c]
 
 
-def _closed(faces: np.ndarray) -> bool:
+def is_closed(faces: np.ndarray) -> bool:
     """Every edge in exactly two triangles (then a triangle facing away is always hidden)."""
     e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
     _, counts = np.unique(e, axis=0, return_counts=True)
@@ -136,7 +139,7 @@ def _closed(faces: np.ndarray) -> bool:
 def render_svg(vertices: np.ndarray, faces: np.ndarray, *, direction: np.ndarray, up: np.ndarray,
                face_colors: np.ndarray | None = None, max_faces: int = 3000, width_px: int = 360,
                height_px: int = 280, arrows: tuple[Arrow, ...] = (), planes: tuple[Plane, ...] = (),
-               title: str = "", key: str = "pic") -> str:
+               title: str = "", key: str = "pic", cull_back: bool | None = None) -> str:
     """An SVG picture of a triangle mesh (orthographic, painter's algorithm, flat Lambert shading).
 
     Parameters
@@ -158,6 +161,9 @@ def render_svg(vertices: np.ndarray, faces: np.ndarray, *, direction: np.ndarray
         Text for `<title>` (read by screen readers); escaped here.
     key : str
         Unique among the pictures of one page: it prefixes the ids of the arrow heads.
+    cull_back : bool, optional
+        Leave out the triangles turned away from the viewer (right for a closed, outward part; a simplified
+        copy of one may no longer be closed, so the caller says). None: when the drawn mesh is closed.
 
     Returns
     -------
@@ -179,7 +185,7 @@ def render_svg(vertices: np.ndarray, faces: np.ndarray, *, direction: np.ndarray
     facing = normal @ B[2]
     light = B.T @ np.array([-0.35, 0.55, 0.76])  # from the upper left, in front: a fixed studio light
     light /= np.linalg.norm(light)
-    if _closed(np.asarray(F)):
+    if is_closed(F) if cull_back is None else cull_back:
         keep = ok & (facing > 0)
         lambert = np.clip(normal @ light, 0.0, 1.0)
     else:  # an open sheet shows both sides: shade each by the side the viewer sees

@@ -16,10 +16,14 @@ import numpy as np
 
 from cam.gcode.parser import ParsedProgram
 from cam.gcode.setup import Setup
-from cam.verify.picture import Arrow, Plane, render_svg
+from cam.verify.picture import Arrow, Plane, is_closed, render_svg, simplify_mesh
 
 __all__ = ["COVERAGE_CLASSES", "DEFAULT_RAPID_MM_MIN", "ProgramStats", "classify_faces", "measure_moves",
            "render_report"]
+
+#: Triangles the pictures of the part and of its coverage keep at most, and those of the setups (thumbnails):
+#: the sheet stays a few hundred kB whatever the mesh.
+PICTURE_FACES, SETUP_PICTURE_FACES = 3000, 1200
 
 #: The rapid rate the machining time assumes (G0 moves carry no feed; a machine's is in its manual).
 DEFAULT_RAPID_MM_MIN = 5000.0
@@ -175,24 +179,24 @@ _PART_VIEW = np.array([-1.0, 1.4, -0.9])  # from the front right, above
 _BELOW_VIEW = np.array([-1.0, 1.4, 0.9])
 
 
-def _part_pictures(V: np.ndarray, F: np.ndarray, face_class: np.ndarray | None) -> tuple[str, str]:
+def _part_pictures(V: np.ndarray, F: np.ndarray, face_class: np.ndarray | None, *, cull: bool) -> tuple[str, str]:
     size = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) or 1.0
     o = V.min(axis=0) - 0.08 * size
     axes = tuple(Arrow(tuple(o), tuple(o + 0.22 * size * e), c, n)
                  for e, c, n in zip(np.eye(3), ("#c0392b", "#27864a", "#2463b5"), "xyz"))
     part = render_svg(V, F, direction=_PART_VIEW, up=(0, 0, 1), arrows=axes, width_px=420, height_px=320,
-                      title="the part (mesh.ply), part frame", key="part")
+                      title="the part (mesh.ply), part frame", key="part", cull_back=cull)
     if face_class is None:
         return part, ""
     palette = np.array([c for _, c in COVERAGE_CLASSES] + [(0.85, 0.86, 0.88)])
     colors = palette[np.where(face_class < 0, len(COVERAGE_CLASSES), face_class)]
     cover = "".join(render_svg(V, F, direction=d, up=(0, 0, 1), face_colors=colors, width_px=320, height_px=260,
-                               title=f"coverage, seen from {w}", key=f"cov{k}")
+                               title=f"coverage, seen from {w}", key=f"cov{k}", cull_back=cull)
                     for k, (d, w) in enumerate(((_PART_VIEW, "above"), (_BELOW_VIEW, "below"))))
     return part, cover
 
 
-def _setup_picture(V: np.ndarray, F: np.ndarray, setup: Setup) -> str:
+def _setup_picture(V: np.ndarray, F: np.ndarray, setup: Setup, *, cull: bool) -> str:
     M = setup.to_machine(V)
     lo, hi = M.min(axis=0), M.max(axis=0)
     size = float(np.linalg.norm(hi - lo)) or 1.0
@@ -206,8 +210,8 @@ def _setup_picture(V: np.ndarray, F: np.ndarray, setup: Setup) -> str:
     c = 0.5 * (lo + hi)
     tool = Arrow((c[0], c[1], hi[2] + 0.55 * size), (c[0], c[1], hi[2] + 0.06 * size), "#7d3cbd", "tool axis")
     return render_svg(M, F, direction=_PART_VIEW, up=(0, 0, 1), arrows=axes + (tool,), planes=(table,),
-                      max_faces=1800, width_px=320, height_px=300, title=f"setup {setup.id} on the machine",
-                      key=f"setup{setup.id}")
+                      width_px=320, height_px=300, title=f"setup {setup.id} on the machine",
+                      key=f"setup{setup.id}", cull_back=cull)
 
 
 def _unfinished_rows(verify: dict, tool: dict) -> list[list[str]]:
@@ -291,12 +295,17 @@ def render_report(*, title: str, verify: dict, setup_doc: dict, setups: list[Set
     """
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
-    part_svg, cover_svg = _part_pictures(V, F, face_class)
+    size = V.max(axis=0) - V.min(axis=0) if len(V) else np.zeros(3)
+    # one simplified mesh for every picture (the setups' are it turned onto the table)
+    full, closed = V, is_closed(F) if len(F) else False
+    V, F, source = simplify_mesh(V, F, max_faces=PICTURE_FACES)
+    part_svg, cover_svg = _part_pictures(V, F, None if face_class is None else np.asarray(face_class)[source],
+                                         cull=closed)
+    Vt, Ft, _ = simplify_mesh(V, F, max_faces=SETUP_PICTURE_FACES)
     passed = bool(verify.get("passed"))
     fin = verify.get("finished_share_of_reachable")
     verdict = "passed" if passed else "not passed"
     r = verify.get("tool_radius_mm", tool.get("radius_mm"))
-    size = V.max(axis=0) - V.min(axis=0) if len(V) else np.zeros(3)
 
     head = (f'<header><h1>Setup sheet</h1><p class="sub">{escape(title)}</p>'
             f'<p class="verdict {"ok" if passed else "bad"}">verify: {verdict} — finished {_pct(fin, "finished_share_of_reachable")} '
@@ -367,11 +376,11 @@ def render_report(*, title: str, verify: dict, setup_doc: dict, setups: list[Set
                 ("rotation (part → machine)", "<br>".join(" ".join(f"{x + 0.0:+.3f}" for x in row) for row in np.round(setup.rotation, 3))),
                 ("translation", " ".join(f"{x + 0.0:+.2f}" for x in np.round(setup.translation, 2)) + " mm"),
                 ("base", f"the part's lowest point on the table: machine Z = "
-                         f"{float(setup.to_machine(V)[:, 2].min()):.2f} mm" if len(V) else "—"),
+                         f"{float(setup.to_machine(full)[:, 2].min()) + 0.0:.2f} mm" if len(full) else "—"),
                 ("programs", ", ".join(f"<code>{escape(p.name)}</code> ({_minutes(p.total_min)})" for p in mine) or "—"),
                 ("patches", str(len(entry.get("patches") or [])))]
         setup_html.append(f'<section class="setup"><h2>Setup {setup.id}</h2><div class="row">'
-                          f"{_setup_picture(V, F, setup)}<div>{_kv(rows)}</div></div></section>")
+                          f"{_setup_picture(Vt, Ft, setup, cull=closed)}<div>{_kv(rows)}</div></div></section>")
 
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>Setup sheet — {escape(title)}</title><style>{SHEET_CSS}</style></head><body>"
