@@ -74,8 +74,11 @@ def simplify_mesh(vertices: np.ndarray, faces: np.ndarray, *, max_faces: int) ->
         ok = (G[:, 0] != G[:, 1]) & (G[:, 1] != G[:, 2]) & (G[:, 0] != G[:, 2])
         src = np.flatnonzero(ok)
         T = np.sort(G[ok], axis=1)
-        m = int(len(V))
-        _, first = np.unique((T[:, 0] * m + T[:, 1]) * m + T[:, 2], return_index=True)
+        m = len(V)
+        if m < 2_000_000:  # a one-number key per triangle sorts far faster than rows
+            _, first = np.unique((T[:, 0] * m + T[:, 1]) * m + T[:, 2], return_index=True)
+        else:
+            _, first = np.unique(T, axis=0, return_index=True)
         src = np.sort(src[first])
         return inverse, G[src], src
 
@@ -205,8 +208,8 @@ def render_svg(vertices: np.ndarray, faces: np.ndarray, *, direction: np.ndarray
         return np.column_stack([width_px / 2 + (xy[:, 0] - centre[0]) * scale,
                                 height_px / 2 - (xy[:, 1] - centre[1]) * scale])
 
-    out = [f'<svg viewBox="0 0 {width_px} {height_px}" width="{width_px}" '
-           f'height="{height_px}" role="img" class="part-picture">', f"<title>{escape(title)}</title>"]
+    out = [(f'<svg viewBox="0 0 {width_px} {height_px}" width="{width_px}" '
+            f'height="{height_px}" role="img" class="part-picture">'), f"<title>{escape(title)}</title>"]
     for plane in planes:
         c = to_px(np.array(plane.corners, dtype=np.float64) @ B[:2].T)
         out.append(f'<path d="M{"L".join(f"{x:.1f} {y:.1f}" for x, y in c)}Z" fill="{plane.color}" '

@@ -161,7 +161,7 @@ def _area(v, key: str = "") -> str:
 
 
 def _minutes(m: float) -> str:
-    s = int(round(m * 60))
+    s = round(m * 60)
     return f"{s // 3600} h {s % 3600 // 60:02d} min" if s >= 3600 else f"{s // 60} min {s % 60:02d} s"
 
 

@@ -45,12 +45,13 @@ def _cube(n: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_machining_time_of_a_tiny_program_is_the_hand_computation():
-    text = "\n".join(["G21 G90", "G0 X0 Y0 Z5",   # position only: the axes become known here
-                      "G1 Z0 F300",                # 5 mm plunge at 300 mm/min: 1/60 min
-                      "G1 X60 F1200",              # 60 mm at 1200 mm/min: 0.05 min
-                      "G1 X60 Y80",                # 80 mm, same feed: 1/15 min
-                      "G0 Z10",                    # rapids: 10 mm ...
-                      "G0 X0 Y0", "M30"])           # ... and 100 mm
+    text = ("G21 G90\n"
+            "G0 X0 Y0 Z5\n"     # position only: the axes become known here
+            "G1 Z0 F300\n"      # 5 mm plunge at 300 mm/min: 1/60 min
+            "G1 X60 F1200\n"    # 60 mm at 1200 mm/min: 0.05 min
+            "G1 X60 Y80\n"      # 80 mm, same feed: 1/15 min
+            "G0 Z10\n"          # rapids: 10 mm ...
+            "G0 X0 Y0\nM30\n")  # ... and 100 mm
     cutting, rapid, cutting_min, rapid_min = measure_moves(parse_program(text), rapid_mm_min=5000.0)
     assert cutting == pytest.approx(5 + 60 + 80, abs=1e-12)
     assert rapid == pytest.approx(10 + 100, abs=1e-12)
