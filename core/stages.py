@@ -54,7 +54,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="reconstruct",
-        version="1",
+        version="2",
         inputs=("cloud.ply",),
         outputs=("mesh_raw.ply",),
         param_groups=("reconstruct",),

@@ -6,6 +6,18 @@ whose outward direction is certain (the point farthest from its component's
 centroid must face away from it). Each step copies the parent's side. The walk
 is linear in the number of points whatever the shape, so a perfectly planar
 sample (where all weights tie) costs no more than a curved one.
+
+Copying the parent's side is only right between two samples of the same sheet
+of the surface. Across a thin wall or a narrow gap (the two faces of a 2 mm
+web, a boss 2 mm above a floor) the neighbourhoods of a noisy cloud reach the
+opposite face, whose tangent plane is parallel but whose outward side is the
+other one: Hoppe's weight calls such a pair a perfect match, and a tree that
+takes it flips the whole face behind it (half of a 2 mm-walled bracket at
+0.25 % noise came out inside out). So an edge also pays for how far its two
+points lie from each other's tangent plane, measured against the gap a sheet
+of this noise can show (:data:`SHEET_GAP_NOISE` times the fit's residual,
+at least the point spacing): the tree then crosses to the opposite face only
+where no path along the surface exists.
 """
 
 from __future__ import annotations
@@ -29,6 +41,12 @@ _MAX_FLIPPED_SHARE = 0.02
 
 # Noise ratio (see estimate_normals) above which the neighbourhood grows in proportion.
 NOISE_REFERENCE = 0.25
+
+# Two neighbours are on one sheet while each lies within this many times the median plane-fit residual
+# (about the noise's sigma) of the other's tangent plane: Gaussian noise puts two samples of one face
+# sqrt(2) sigma apart along the normal, so 3 residuals keep 97 % of same-face pairs, while the two faces of a
+# 2 mm wall at the bench's noise (sigma 0.2 mm) lie 10 sigma apart.
+SHEET_GAP_NOISE = 3.0
 
 
 class NormalsError(GeometryError):
@@ -109,13 +127,18 @@ def estimate_normals(
     normals : ndarray, shape (n, 3), float64
         Unit vectors, outward where the seed rule holds.
     report : dict
-        ``k`` (the one used), ``noise_ratio``, ``components``, ``flipped_share``.
+        ``k`` (the one used), ``noise_ratio``, ``sheet_gap`` (the offset from a
+        neighbour's tangent plane beyond which a pair is taken for two sheets,
+        the points' units; see :func:`orient_normals`), ``components``,
+        ``flipped_share``.
 
     Raises
     ------
     NormalsError
         When the orientation leaves more than 2 % of nearly parallel neighbour
-        pairs pointing opposite ways (a non-orientable or badly undersampled cloud).
+        pairs on one sheet pointing opposite ways (a non-orientable or badly
+        undersampled cloud). The two faces of a thin wall point opposite ways
+        by right and are not counted.
     """
     pts = np.asarray(points, dtype=np.float64)
     k = int(min(k, len(pts) - 1))
@@ -125,7 +148,8 @@ def estimate_normals(
     if check_cancel is not None:
         check_cancel()
     normals, residual = _pca_normals(pts, idx)
-    noise = float(np.median(residual) / max(float(np.median(dist[:, 0])), 1e-300))
+    spacing = max(float(np.median(dist[:, 0])), 1e-300)
+    noise = float(np.median(residual) / spacing)
     wider = min(4 * k, int(round(k * noise / NOISE_REFERENCE)), len(pts) - 1)
     if noise_adaptive and wider > k:
         if check_cancel is not None:
@@ -133,12 +157,16 @@ def estimate_normals(
         k = wider
         dist, idx = tree.query(pts, k=k + 1, workers=workers)
         dist, idx = dist[:, 1:], idx[:, 1:]
-        normals, _ = _pca_normals(pts, idx)
-    normals, components = orient_normals(pts, normals, idx, dist)
+        normals, residual = _pca_normals(pts, idx)
+    # The spacing is the floor: on a clean scan the residual is ~0 while a curved face still bends
+    # away from its tangent plane by (spacing)^2 / (2 radius) within a neighbourhood.
+    sheet_gap = max(SHEET_GAP_NOISE * float(np.median(residual)), spacing)
+    normals, components = orient_normals(pts, normals, idx, dist, sheet_gap=sheet_gap)
     if check_cancel is not None:
         check_cancel()
     dots = np.einsum("ij,ikj->ik", normals, normals[idx])
-    parallel = np.abs(dots) > 0.7
+    same_sheet = _plane_offsets(pts, normals, idx) < sheet_gap
+    parallel = (np.abs(dots) > 0.7) & same_sheet
     flipped = (dots < -0.7) & parallel
     share = float(flipped.sum() / max(parallel.sum(), 1))
     if share > _MAX_FLIPPED_SHARE:
@@ -147,8 +175,20 @@ def estimate_normals(
             "points still face opposite ways): the cloud is non-orientable, very noisy or too sparse "
             "for its thin parts; upload oriented normals or a denser scan"
         )
-    return normals, {"k": k, "noise_ratio": round(noise, 4), "components": int(components),
-                     "flipped_share": share}
+    return normals, {"k": k, "noise_ratio": round(noise, 4), "sheet_gap": sheet_gap,
+                     "components": int(components), "flipped_share": share}
+
+
+def _plane_offsets(points: np.ndarray, normals: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """(n, k) mean distance of each neighbour pair from the other's tangent plane, the points' units."""
+    out = np.empty(idx.shape)
+    step = 200_000  # bounds the (chunk, k, 3) temporaries
+    for start in range(0, len(points), step):
+        sl = slice(start, start + step)
+        e = points[idx[sl]] - points[sl, None, :]
+        out[sl] = 0.5 * (np.abs(np.einsum("nj,nkj->nk", normals[sl], e))
+                         + np.abs(np.einsum("nkj,nkj->nk", normals[idx[sl]], e)))
+    return out
 
 
 def _pca_normals(points: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +210,7 @@ def _pca_normals(points: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def orient_normals(
-    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dist: np.ndarray
+    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dist: np.ndarray, *, sheet_gap: float = np.inf
 ) -> tuple[np.ndarray, int]:
     """Flip normals to one consistent side along a minimum spanning tree of the k-NN graph.
 
@@ -184,6 +224,13 @@ def orient_normals(
         Each point's k nearest neighbours, self excluded.
     dist : ndarray, shape (n, k), float64
         Their distances, the points' units.
+    sheet_gap : float
+        The points' units. A pair's weight grows by (offset / sheet_gap)^2, the
+        offset being the mean distance of each point from the other's tangent
+        plane: beyond one sheet_gap that alone outweighs the worst disagreement
+        of two tangent planes (1 - |cos| <= 1), so the tree only crosses a thin
+        wall or gap where no path along the surface connects the two sides.
+        inf: Hoppe's weight.
 
     Returns
     -------
@@ -200,6 +247,8 @@ def orient_normals(
     # strictly positive: scipy's sparse graphs read a zero weight as a missing edge.
     scale = float(np.median(dist[:, 0])) or 1.0
     weight = (1.0 - dots) + 1e-3 * dist.reshape(-1) / scale + 1e-9
+    if np.isfinite(sheet_gap):
+        weight = weight + (_plane_offsets(points, normals, idx).reshape(-1) / sheet_gap) ** 2
     graph = coo_matrix((weight, (rows, cols)), shape=(n, n)).tocsr()
     graph = graph.maximum(graph.T)
     tree = minimum_spanning_tree(graph)

@@ -5,10 +5,14 @@ estimated, a signed distance f is trained with the IGR loss, and its zero
 level set is extracted with marching cubes and mapped back to the input's
 frame and units.
 
+The mesh is then measured against its own cloud (:mod:`cam.reconstruct.fidelity`): a surface that
+strays from the scanned points, or leaves a cluster of them out, by more than 8 point spacings plus 4
+times the cloud's noise is a wrong part, not a rough one, and is refused.
+
 What the user can change (too few or only duplicate points, a collinear or flat cloud, normals that
-cannot be oriented, a diverging run, a field with no inside) raises a :class:`~cam.GeometryError`
-(:class:`~cam.reconstruct.normals.NormalsError` and :class:`~cam.reconstruct.train.DivergedError`
-are ones); arrays of the wrong shape, non-finite coordinates and an unknown device are a caller's
+cannot be oriented, a diverging run, a field with no inside, a mesh that strays from its cloud) raises a
+:class:`~cam.GeometryError` (:class:`~cam.reconstruct.normals.NormalsError`,
+:class:`~cam.reconstruct.train.DivergedError` and :class:`~cam.reconstruct.fidelity.FidelityError` are ones); arrays of the wrong shape, non-finite coordinates and an unknown device are a caller's
 bug and raise ``ValueError``. The options come from a `ReconstructParams`, validated when it was made.
 """
 
@@ -27,6 +31,7 @@ from scipy.spatial import cKDTree
 from cam import CheckCancel, GeometryError, Progress, progress_between
 from cam.params import ReconstructParams
 from cam.reconstruct.extract import extract_surface, is_watertight
+from cam.reconstruct.fidelity import check_fidelity, measure_fidelity
 from cam.reconstruct.fields import GridField, IGRNetwork
 from cam.reconstruct.normals import check_normals, estimate_normals
 from cam.reconstruct.presets import resolve_options
@@ -62,6 +67,7 @@ def reconstruct_surface(
     device: str = "auto",
     progress: Progress | None = None,
     check_cancel: CheckCancel | None = None,
+    self_check: bool = True,
 ) -> Reconstruction:
     """Reconstruct a closed surface from a point cloud.
 
@@ -105,6 +111,10 @@ def reconstruct_surface(
     check_cancel : callable, optional
         Called every iteration and between phases; it stops the work by raising
         (the exception passes through untouched).
+    self_check : bool
+        Refuse a mesh that strays from its cloud (see ``fidelity`` below and
+        :func:`~cam.reconstruct.fidelity.check_fidelity`). False: measure and
+        report only (for benches that study a failing case).
 
     Returns
     -------
@@ -115,7 +125,12 @@ def reconstruct_surface(
         the effective ``options``, ``device``, ``threads``, ``normalisation``
         (``centre`` in input units, ``scale``), ``training`` (``iterations``,
         final loss terms), ``mesh`` (vertex and face counts, ``watertight``,
-        components, ``cell_units``) and ``timings_s`` (seconds).
+        components, ``cell_units``), ``fidelity`` (the mesh against its own
+        cloud, input units: ``tolerance`` = 8 x ``spacing`` + 4 x ``noise``,
+        ``mesh_to_cloud`` and ``cloud_to_mesh`` (largest distances; isolated
+        outliers left out and counted under ``outliers``), the same as shares of
+        the cloud's ``diagonal``, ``ok``; see
+        :class:`~cam.reconstruct.fidelity.Fidelity`) and ``timings_s`` (seconds).
 
     Raises
     ------
@@ -124,7 +139,10 @@ def reconstruct_surface(
         a collinear or flat cloud, zero-length or non-finite normals or normals
         that cannot be oriented (:class:`~cam.reconstruct.normals.NormalsError`),
         a diverging training run (:class:`~cam.reconstruct.train.DivergedError`),
-        or a field in which no surface was found.
+        a field in which no surface was found, or (``self_check``) a mesh that
+        strays from its cloud or leaves a cluster of it out
+        (:class:`~cam.reconstruct.fidelity.FidelityError`, naming the distances,
+        where, and what to do).
     ValueError
         For arrays of the wrong shape, non-finite coordinates, or an unknown ``device``.
     """
@@ -160,8 +178,13 @@ def reconstruct_surface(
                 progress=progress, check_cancel=check_cancel)
 
     verts = verts * scale + centre
+    # The surface cannot be held finer than the field's finest cell nor the marching-cubes lattice.
+    finest = max(mesh_report["cell"], field.cell[-1] if isinstance(field, GridField) else 0.0) * scale
     mesh_report.update({"vertices": int(len(verts)), "faces": int(len(faces)),
                         "cell_units": mesh_report.pop("cell") * scale})
+    check_cancel()
+    with _timed(timings, "check"):
+        fidelity = measure_fidelity(verts, faces, pts, resolution=finest, workers=workers)
     timings["total"] = time.perf_counter() - started
     report = {
         "points": int(len(pts)),
@@ -175,8 +198,11 @@ def reconstruct_surface(
         "normalisation": {"centre": centre.tolist(), "scale": scale},
         "training": training,
         "mesh": mesh_report,
+        "fidelity": fidelity.report(),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
+    if self_check:
+        check_fidelity(fidelity)
     return Reconstruction(vertices=verts, faces=faces, report=report)
 
 

@@ -18,7 +18,8 @@ def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
         raise StageError("cloud.ply holds a mesh, not a point cloud; mesh uploads skip reconstruct")
     threads = ctx.settings.get("blas_threads") or 1
     # The core reports its own fractions of the stage (training 0.05..0.9, extraction after);
-    # a GeometryError (too few points, a flat cloud, ...) reaches the user as it is.
+    # a GeometryError (too few points, a flat cloud, a mesh that strays from its cloud, ...) reaches
+    # the user as it is: a wrong part must not go on to be machined.
     result = reconstruct_surface(cloud.points, cloud.normals, ctx.params.reconstruct, threads=int(threads),
                                  progress=ctx.progress, check_cancel=ctx.check_cancel)
     ctx.check_cancel()
@@ -26,7 +27,15 @@ def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
     comments = [
         f"cloud2cnc reconstruct (IGR, preset {report['preset']})",
         f"watertight {str(report['mesh']['watertight']).lower()}, normals {report['normals']['source']}",
+        _fidelity_comment(report["fidelity"]),
     ]
     path = write_ply_mesh(ctx.output("mesh_raw.ply"), result.vertices, result.faces, comments=comments)
     ctx.progress(1.0, None)
     return {"mesh_raw.ply": path}
+
+
+def _fidelity_comment(fid: dict) -> str:
+    """The self-check's measurement, for the PLY header (the stage writes no JSON report)."""
+    return (f"fidelity: every vertex within {fid['mesh_to_cloud']:.3g} mm of the cloud, the cloud within "
+            f"{fid['cloud_to_mesh']:.3g} mm of the surface ({fid['outliers']} isolated outliers apart), "
+            f"allowed {fid['tolerance']:.3g} mm = {fid['rule']}")
