@@ -79,7 +79,8 @@ def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np
         Patches fitted at once, in forked processes (`cam.map_forked`); the surfaces are bit for bit those
         of one process.
     progress : callable or None
-        progress(fraction, message=None), called between patches.
+        progress(fraction, message=None), called between patches and between the steps of each patch's
+        fit (from the forked processes too).
     check_cancel : callable or None
         Called between patches and inside each patch's fit; it raises to stop the fit.
 
@@ -173,7 +174,9 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
     final = _fit_bordered(problem, coarse, curves, fit_opts, each)
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
-                           params.tolerance_mm, processes=processes, check_cancel=cancel)
+                           params.tolerance_mm, processes=processes, check_cancel=cancel,
+                           progress=_labelled(report, 0.92, 0.97, "measuring every mesh sample against the surfaces"))
+    report(0.97, "reporting each patch: its errors, folds and creases")
     creases = problem.creases
     if creases is None:
         creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=params.crease_angle_deg)
@@ -286,28 +289,43 @@ class _Each:
     report: Progress
     cancel: CheckCancel
 
-    def map(self, fit_one, ks: list[int], start: float, end: float, message: str) -> list[Refined]:
-        """[fit_one(k, check_cancel) for k in ks], progress from `start` to `end` with `message` % (done, total)."""
+    def map(self, fit_one, ks: list[int], start: float, end: float, label: str) -> list[Refined]:
+        """[fit_one(k, check_cancel, progress) for k in ks], progress from `start` to `end`, each patch's
+        own steps counted as it runs; the message is `label`, the patches done and what runs."""
 
-        def progress(fraction: float, _message: str | None = None) -> None:
-            self.report(start + (end - start) * fraction, message % (round(fraction * len(ks)), len(ks)))
+        def one(i: int, cc: CheckCancel, item_progress: Progress) -> Refined:
+            def patch_progress(fraction: float, message: str | None = None) -> None:
+                item_progress(fraction, f"patch {ks[i] + 1}" + (f": {message}" if message else ""))
 
-        return map_forked(lambda i, cc: fit_one(ks[i], cc), len(ks), processes=self.processes,
-                          check_cancel=self.cancel, progress=progress)
+            return fit_one(ks[i], cc, patch_progress)
+
+        return map_forked(one, len(ks), processes=self.processes, check_cancel=self.cancel,
+                          progress=_labelled(self.report, start, end, label), item_progress=True)
+
+
+def _labelled(report: Progress, start: float, end: float, label: str) -> Progress:
+    """`report` for a step that takes `start`..`end` of it, its messages after `label`."""
+
+    def progress(fraction: float, message: str | None = None) -> None:
+        report(start + (end - start) * fraction, f"{label}: {message}" if message else label)
+
+    return progress
 
 
 def _fit_free(problem: _Problem, fit_opts: dict, each: _Each) -> list[Refined]:
     """Every patch fitted on its own (free fits, refined for their borders, where the curves are fitted)."""
-    return each.map(lambda k, cc: _fit_free_patch(problem, k, None, {**fit_opts, "check_cancel": cc}),
-                    list(range(len(problem.grids))), 0.0, 0.35, "fitted %d of %d patches on their own")
+    return each.map(lambda k, cc, pr: _fit_free_patch(problem, k, None, {**fit_opts, "check_cancel": cc,
+                                                                          "progress": pr}),
+                    list(range(len(problem.grids))), 0.0, 0.35, "fitting each patch on its own")
 
 
 def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, each: _Each) -> list[Refined]:
     """The free fits, with those whose samples moved to or from a neighbour fitted again from where they were."""
     moved = sorted(_reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free],
                              problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel))
-    refits = each.map(lambda k, cc: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "check_cancel": cc}),
-                      moved, 0.35, 0.4, "fitted %d of %d patches again after samples moved")
+    refits = each.map(lambda k, cc, pr: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "check_cancel": cc,
+                                                                                  "progress": pr}),
+                      moved, 0.35, 0.4, "fitting again the patches whose samples moved")
     free = list(free)
     for k, fit in zip(moved, refits):
         free[k] = fit
@@ -318,7 +336,7 @@ def _fit_bordered(problem: _Problem, coarse: list[SurfaceFit], curves: list[Curv
                   each: _Each) -> list[Refined]:
     """Every patch fitted again inside its border rows, taken from the boundary curves and held fixed."""
 
-    def fit_one(k: int, cc: CheckCancel) -> Refined:
+    def fit_one(k: int, cc: CheckCancel, pr: Progress) -> Refined:
         ku, kv, cp = seed_bordered_net(k, problem.layout, coarse[k], curves)
         pts, nrm, u, v = _patch_data(problem, k)
         # The final surfaces are drawn onto the mesh on a lattice an eighth of a quad apart, the free
@@ -326,9 +344,10 @@ def _fit_bordered(problem: _Problem, coarse: list[SurfaceFit], curves: list[Curv
         # tolerance (a bump's fit, 0.03204 mm), and the free fits only place the borders.
         return fit_refined(pts, nrm, u, v, knots_u=ku, knots_v=kv, control_points=cp, fix_border=True,
                            lengths_mm=problem.lengths[k], anchors=problem.anchors[k], mesh_spacing=0.125,
-                           mesh_edges=True, **{**fit_opts, "check_cancel": cc})
+                           mesh_edges=True, **{**fit_opts, "check_cancel": cc, "progress": pr})
 
-    return each.map(fit_one, list(range(len(problem.grids))), 0.4, 0.9, "fitted %d of %d patches to their shared borders")
+    return each.map(fit_one, list(range(len(problem.grids))), 0.4, 0.9,
+                    "fitting each patch inside its shared borders")
 
 
 def _lengths(V: np.ndarray, g: np.ndarray) -> tuple[float, float]:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam import CheckCancel
+from cam import CheckCancel, Progress
 from cam.fit.measure import surface_peaks
 from cam.fit.solve import SurfaceFit, fit_surface
 from cam.spline.basis import find_spans
@@ -122,7 +122,8 @@ def border_mask(shape: tuple[int, int]) -> np.ndarray:
 def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
                 knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
                 tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, min_gain: float = 0.1,
-                border_band: float = 0.5, check_cancel: CheckCancel | None = None, **options) -> Refined:
+                border_band: float = 0.5, check_cancel: CheckCancel | None = None, progress: Progress | None = None,
+                **options) -> Refined:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
     Spans are halved where samples are beyond the tolerance, and where the surface is (with a `mesh`
@@ -159,6 +160,9 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         See above, grid-index units.
     check_cancel : callable or None
         Called before every round and every step of `fit_surface`; it raises to stop the fit.
+    progress : callable or None
+        progress(fraction, message) before every step of `fit_surface`: each of the 1 + `max_refinements`
+        fits at most takes an equal share (rounds not needed are skipped over at the end).
     **options
         Passed on to `cam.fit.solve.fit_surface` (mesh, anchors, weights...).
 
@@ -172,7 +176,7 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     fixed = None if cp is None or not fix_border else border_mask(cp.shape[:2])
     fit = fit_surface(points, normals, u, v, knots_u=knots_u, knots_v=knots_v, control_points=cp, fixed=fixed,
                       tolerance_mm=tolerance_mm, clamped_samples=mode, warm=False, check_cancel=check_cancel,
-                      **options)
+                      progress=_round_progress(progress, 0, max_refinements), **options)
     first, rounds, weak = fit, 0, 0
     # The peaks between the lattice's points count for the final surfaces only (inside fixed borders):
     # a free fit places its borders, which its lattice measures, and searching its inside too
@@ -190,7 +194,8 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             break
         rounds += 1
         refit = _refit_round(points, normals, fit, peaks, tu, tv, tolerance_mm=tolerance_mm, fix_border=fix_border,
-                             check_cancel=check_cancel, **options)
+                             check_cancel=check_cancel, progress=_round_progress(progress, rounds, max_refinements),
+                             **options)
         refit_peaks = _peaks(mesh, refit)
         improved, enough = _judge_round(refit, refit_peaks, best, best_peaks, tolerance_mm=tolerance_mm,
                                         min_gain=min_gain)
@@ -201,6 +206,20 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             break
         fit, peaks = refit, refit_peaks
     return Refined(best, rounds, first, best_peaks)
+
+
+def _round_progress(progress: Progress | None, round_: int, rounds: int) -> Progress | None:
+    """`progress` for the fit of round `round_` (0: the first fit) of `rounds` at most: its share of them,
+    its message saying which."""
+    if progress is None:
+        return None
+    name = "fit" if rounds == 0 else "first fit" if round_ == 0 else f"refinement round {round_} of {rounds} at most"
+
+    def report(fraction: float, message: str | None = None) -> None:
+        share = (round_ + min(max(float(fraction), 0.0), 1.0)) / (rounds + 1)
+        progress(share, f"{name}, {message}" if message else name)
+
+    return report
 
 
 def _split_targets(fit: SurfaceFit, peaks, *, tolerance_mm: float, fix_border: bool, border_band: float,
@@ -224,7 +243,8 @@ def _split_targets(fit: SurfaceFit, peaks, *, tolerance_mm: float, fix_border: b
 
 
 def _refit_round(points, normals, fit: SurfaceFit, peaks, target_u, target_v, *, tolerance_mm: float,
-                 fix_border: bool, check_cancel: CheckCancel | None, **options) -> SurfaceFit:
+                 fix_border: bool, check_cancel: CheckCancel | None, progress: Progress | None,
+                 **options) -> SurfaceFit:
     """`fit_surface` again from the fit refined into the target knots by exact knot insertion."""
     ku, kv, cp = refine_surface(fit.knots_u, fit.knots_v, fit.control_points, target_u=target_u, target_v=target_v)
     # A free refit starts warm (at the smoothing floor). A refit inside fixed borders takes the
@@ -238,7 +258,7 @@ def _refit_round(points, normals, fit: SurfaceFit, peaks, target_u, target_v, *,
                        fixed=border_mask(cp.shape[:2]) if fix_border else None, tolerance_mm=tolerance_mm,
                        clamped_samples="drop" if fix_border else "pull", warm=not fix_border,
                        mesh_points=(peaks[0], peaks[1]) if peaks[0].size else None,
-                       check_cancel=check_cancel, **options)
+                       check_cancel=check_cancel, progress=progress, **options)
 
 
 def _judge_round(refit: SurfaceFit, refit_peaks, best: SurfaceFit, best_peaks, *, tolerance_mm: float,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam import CheckCancel, map_forked
+from cam import CheckCancel, Progress, map_forked
 from cam.fit.boundary import SIDES, Layout, side_params
 from cam.fit.foot import distance_to_surface
 from cam.fit.measure import surface_peaks
@@ -197,7 +197,8 @@ def _report_patch(k: int, done: Refined, *, samples, owner, errors, shape, layou
 
 
 def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layout: Layout, tolerance_mm: float, *,
-                  processes: int = 1, check_cancel: CheckCancel | None = None) -> np.ndarray:
+                  processes: int = 1, check_cancel: CheckCancel | None = None, progress: Progress | None = None
+                  ) -> np.ndarray:
     """Distance of every assigned sample to the fitted surfaces: its own patch's, or a neighbour's where closer.
 
     Measured afresh on all samples, not taken from the fit, which may have used a subset; a
@@ -219,6 +220,8 @@ def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layo
         Patches measured at once, in forked processes (`cam.map_forked`; the same distances).
     check_cancel : callable or None
         Called before each patch; it raises to stop.
+    progress : callable or None
+        progress(fraction, message) as the patches are measured.
 
     Returns
     -------
@@ -229,7 +232,7 @@ def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layo
     groups = [np.flatnonzero(owner == k) for k in range(len(fits))]
     todo = [k for k in range(len(fits)) if groups[k].size]
     measured = map_forked(lambda i, cc: _patch_errors(P[groups[todo[i]]], todo[i], fits, layout, tolerance_mm),
-                          len(todo), processes=processes, check_cancel=check_cancel)
+                          len(todo), processes=processes, check_cancel=check_cancel, progress=progress)
     for k, d in zip(todo, measured):
         err[groups[k]] = d
     return err

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam import CheckCancel
+from cam import CheckCancel, Progress
 from cam.fit.foot import FootFrame, foot_frames, project_points
 from cam.fit.measure import measure_lattice
 from cam.fit.param import Anchors
@@ -133,7 +133,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                 clamped_samples: str = "pull", iterations: int = 8, warm: bool = False,
                 mesh: MeshIndex | None = None, mesh_weight: float = 1.0, mesh_spacing: float = 0.25,
                 mesh_edges: bool = False, mesh_points: tuple[np.ndarray, np.ndarray] | None = None,
-                degree: tuple[int, int] = (3, 3), check_cancel: CheckCancel | None = None) -> SurfaceFit:
+                degree: tuple[int, int] = (3, 3), check_cancel: CheckCancel | None = None,
+                progress: Progress | None = None) -> SurfaceFit:
     """Fit a B-spline surface with the given knots to samples, keeping `fixed` control points.
 
     Stops when the largest distance is within tolerance and no longer improving, when it stops
@@ -210,6 +211,9 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         (p, q), the surface's degrees.
     check_cancel : callable or None
         Called before every step; it raises to stop the fit.
+    progress : callable or None
+        progress(fraction, message) before every step: the share of the `iterations` + 1 steps taken (the
+        iteration may stop before the last).
 
     Returns
     -------
@@ -236,6 +240,8 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     for it in range(iterations + 1):
         if check_cancel is not None:
             check_cancel()
+        if progress is not None:
+            progress(it / (iterations + 1), f"step {it + 1} of {iterations + 1} at most")
         fit, feet = _measure_step(P, ku, kv, cp, u, v, it, clamped_samples=clamped_samples, mesh=mesh,
                                   mesh_spacing=mesh_spacing, mesh_edges=mesh_edges, mesh_points=mesh_points,
                                   degree=degree)
