@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import binary_dilation
 
-from cam import CheckCancel
+from cam import CheckCancel, Progress, progress_between
 from cam.plan.cleanup import cleanup_passes
 from cam.plan.coverage import left_on_samples
 from cam.plan.part import SetupPart
@@ -79,7 +79,8 @@ def target_region(centres_xy: np.ndarray, bounds: tuple[float, float, float, flo
 
 
 def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, scallop_mm: float, chord_mm: float,
-                 target_mm: float, cleanup_rounds: int = 2, check_cancel: CheckCancel | None = None) -> FinishedSetup:
+                 target_mm: float, cleanup_rounds: int = 2, check_cancel: CheckCancel | None = None,
+                 progress: Progress | None = None) -> FinishedSetup:
     """Plan raster, waterline and clean-up passes that finish the given samples of the part.
 
     Parameters
@@ -95,6 +96,9 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
     cleanup_rounds : int
         Times the leftover samples get clean-up passes and are measured again.
     check_cancel : callable, optional
+    progress : callable, optional
+        progress(fraction, message) through the raster's lines, the waterline's levels and the clean-up
+        rounds.
 
     Returns
     -------
@@ -103,6 +107,7 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
     out = FinishedSetup(left=np.full(len(points), np.inf))
     if not len(points):
         return out
+    report = progress or (lambda fraction, message=None: None)
     r = part.radius_mm
     step = float(flat_spacing(scallop_mm, r))
     centres = points + r * normals
@@ -110,13 +115,16 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
     bounds = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
     region = target_region(centres[:, :2], bounds, cell_mm=0.5 * step, grow_mm=step)
     raster = raster_passes(part, bounds=bounds, scallop_mm=scallop_mm, chord_mm=chord_mm, region=region,
-                           max_slope_deg=RASTER_MAX_SLOPE_DEG, check_cancel=check_cancel)
+                           max_slope_deg=RASTER_MAX_SLOPE_DEG, check_cancel=check_cancel,
+                           progress=progress_between(report, 0.0, 0.4))
     out.add("raster", raster.passes)
     out.certified_mm["raster"] = raster.scallop_mm + raster.chord_mm
     waterline = waterline_passes(part, bounds=bounds, scallop_mm=scallop_mm, chord_mm=chord_mm, region=region,
-                                 min_slope_deg=WATERLINE_MIN_SLOPE_DEG, check_cancel=check_cancel)
+                                 min_slope_deg=WATERLINE_MIN_SLOPE_DEG, check_cancel=check_cancel,
+                                 progress=progress_between(report, 0.4, 0.8))
     out.add("waterline", waterline.passes)
     out.certified_mm["waterline"] = waterline.scallop_mm + waterline.chord_mm
+    report(0.8, f"measuring what {len(out.passes)} passes leave on {len(points)} samples")
     out.left = left_on_samples(out.passes, points, normals, tool_radius_mm=r, reach_mm=target_mm)
     out.stats = {"raster_lines": raster.lines, "waterline_levels": waterline.levels}
     for k in range(cleanup_rounds):
@@ -125,6 +133,8 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
         over = ~(out.left <= target_mm)
         if not over.any():
             break
+        report(0.85 + 0.15 * k / cleanup_rounds, f"clean-up round {k + 1} of {cleanup_rounds} at most: "
+                                                 f"{int(over.sum())} samples left over")
         more = cleanup_passes(part, points[over], normals[over], chord_mm=chord_mm, link_mm=0.5 * step)
         out.add("cleanup", more)
         left_more = left_on_samples(more, points[over], normals[over], tool_radius_mm=r, reach_mm=target_mm)

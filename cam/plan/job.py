@@ -126,7 +126,7 @@ def _machine(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndar
 
 
 def _patch_passes(surfaces: SurfacesIn | None, setups: list[Setup], parts: list[SetupPart], tool: ToolParams,
-                  toolpath: ToolpathParams, *, chord_mm: float, processes: int, check_cancel
+                  toolpath: ToolpathParams, *, chord_mm: float, processes: int, check_cancel, progress=None
                   ) -> tuple[PatchesPlan | None, list]:
     """The patch passes per setup, lifted onto the mesh's drop-cutter height and refined against it."""
     out = [_Passes() for _ in setups]
@@ -135,7 +135,7 @@ def _patch_passes(surfaces: SurfacesIn | None, setups: list[Setup], parts: list[
     keep = np.flatnonzero(surfaces.good)
     plan = plan_patches([surfaces.ids[k] for k in keep], [surfaces.surfaces[k] for k in keep], setups, tool,
                         toolpath, signs=surfaces.signs[keep], add_setups=False, processes=processes,
-                        check_cancel=check_cancel)
+                        check_cancel=check_cancel, progress=progress)
     by_id = {s.id: k for k, s in enumerate(setups)}
     for sp in plan.setups:
         k = by_id[sp.setup.id]
@@ -163,13 +163,25 @@ def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach:
                                                        tool_radius_mm=part.radius_mm, reach_mm=h))
         target = reach[k] & ~(left <= h)
         done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
-                            target_mm=h, check_cancel=check_cancel)
+                            target_mm=h, check_cancel=check_cancel,
+                            progress=_labelled(progress, k / len(parts), (k + 1) / len(parts),
+                                               f"setup {k + 1}: finishing on the mesh"))
         passes[k].centres += done.passes
         passes[k].strategy += done.strategy
         left[target] = np.minimum(left[target], done.left)
         stats.append({"targets": int(target.sum()), **done.stats,
                       "strategy_bound_mm": {s: round(v, 6) for s, v in done.certified_mm.items()}})
     return stats
+
+
+def _labelled(progress: Progress, start: float, end: float, label: str) -> Progress:
+    """`progress` for a step that takes `start`..`end` of it, its messages after `label`."""
+
+    def report(fraction: float, message: str | None = None) -> None:
+        progress(start + (end - start) * min(max(float(fraction), 0.0), 1.0),
+                 f"{label}: {message}" if message else label)
+
+    return report
 
 
 #: Spacing of the points a link's rapid is checked at, mm.
@@ -263,7 +275,8 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     parts = [setup_part(vertices, faces, s, tool_radius_mm=r) for s in choice.setups]
     progress(0.05, "patch passes")
     patch_plan, passes = _patch_passes(surfaces, choice.setups, parts, tool, toolpath, chord_mm=chord_mm,
-                                       processes=processes, check_cancel=check_cancel)
+                                       processes=processes, check_cancel=check_cancel,
+                                       progress=_labelled(progress, 0.05, 0.2, "patch passes"))
     left = np.full(len(samples.area), np.inf)
     stats = _finish_rest_of_part(parts, samples, choice.reach, passes, left, h=h, scallop_mm=scallop_mm,
                                  chord_mm=chord_mm, progress=progress_between(progress, 0.2, 0.8),
@@ -301,7 +314,9 @@ def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: n
         target = ~(rest_left <= h) & part.reaches(points, normals)
         progress(k / len(setups), f"setup {k + 1}: rest ball")
         done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
-                            target_mm=h, check_cancel=check_cancel)
+                            target_mm=h, check_cancel=check_cancel,
+                            progress=_labelled(progress, k / len(setups), (k + 1) / len(setups),
+                                               f"setup {k + 1}: rest ball"))
         rest_left[target] = np.minimum(rest_left[target], done.left)
         finished = target.copy()
         finished[target] = done.left <= h

@@ -193,9 +193,11 @@ def _finishable(ids: list[int], surfaces: list[BSplineSurface], signs: np.ndarra
 
 def _plan_one_patch(p: Patch, setup: Setup, whole: dict[int, BSplineSurface], index: SurfaceIndex, tool: ToolParams,
                     toolpath: ToolpathParams, *, finish: _Finishable, assignment: Assignment,
-                    check_cancel: CheckCancel) -> tuple[list[PatchPlan], list[dict], list[dict]]:
+                    check_cancel: CheckCancel, progress: Progress
+                    ) -> tuple[list[PatchPlan], list[dict], list[dict]]:
     """One patch's plans (its rectangle, then the strips beside it that it leaves), what of it cannot be
     planned (`unmachined` entries) and each rectangle that is not the whole patch (`partial` entries)."""
+    progress(0.0, f"patch {p.id}: its rings")
     trimmed = finish.trimmed.get(p.id)
     share = assignment.reach.get(p.id, 1.0) * (trimmed.kept if trimmed is not None else 1.0)
     options = {"reach_fraction": share, "check_cancel": check_cancel, "to_part": setup.to_part}
@@ -207,6 +209,7 @@ def _plan_one_patch(p: Patch, setup: Setup, whole: dict[int, BSplineSurface], in
     claim = _claim(whole[p.id], plans[0], trimmed)
     if claim is not None:
         partial.append({"patch": p.id, **claim})
+        progress(0.6, f"patch {p.id}: the strips beside its rectangle")
         more, claims = _plan_beside(p, plans[0].region, whole[p.id], index, tool, toolpath, trimmed=trimmed,
                                     **options)
         plans += more
@@ -222,9 +225,11 @@ def _plan_setup_patches(setup: Setup, mine: list[int], patches: list[Patch], who
     plans as one after another); what cannot be planned goes to `unmachined`, each rectangle that is not a
     whole patch to `partial`, in patch order."""
     todo = [p for p in patches if p.id in mine]
-    results = map_forked(lambda k, cc: _plan_one_patch(todo[k], setup, whole, index, tool, toolpath, finish=finish,
-                                                       assignment=assignment, check_cancel=cc),
-                         len(todo), processes=processes, check_cancel=check_cancel, progress=progress)
+    results = map_forked(lambda k, cc, pr: _plan_one_patch(todo[k], setup, whole, index, tool, toolpath,
+                                                           finish=finish, assignment=assignment, check_cancel=cc,
+                                                           progress=pr),
+                         len(todo), processes=processes, check_cancel=check_cancel, progress=progress,
+                         item_progress=True)
     plans = []
     for got, lost, part in results:
         plans += got
@@ -234,10 +239,12 @@ def _plan_setup_patches(setup: Setup, mine: list[int], patches: list[Patch], who
 
 
 def _patches_progress(progress: Progress, setup_id: int, before: int, n: int, total: int) -> Progress:
-    """progress(share of this setup's n patches done) as a share of all `total` patches, `before` of them done."""
+    """progress(share of this setup's n patches done, `cam.map_forked`'s message) as a share of all `total`
+    patches, `before` of them done."""
 
     def report(fraction: float, message: str | None = None) -> None:
-        progress(0.05 + 0.9 * (before + fraction * n) / total, f"setup {setup_id}: {round(fraction * n)} of {n} patches")
+        progress(0.05 + 0.9 * (before + fraction * n) / total, f"setup {setup_id}: patches {message}" if message
+                 else f"setup {setup_id}: patches")
 
     return report
 
@@ -282,7 +289,8 @@ def plan_patches(ids: list[int], surfaces: list[BSplineSurface], setups: list[Se
     processes : int
         Patches planned at once, in forked processes (the plans are those of one process).
     progress, check_cancel : callable or None
-        cam's callbacks (see `cam`), called between patches.
+        cam's callbacks (see `cam`): progress between patches and within each as it is planned, check_cancel
+        while each is planned.
 
     Returns
     -------

@@ -17,7 +17,7 @@ from itertools import pairwise
 import numpy as np
 from scipy.ndimage import binary_dilation
 
-from cam import CheckCancel
+from cam import CheckCancel, Progress, progress_between
 from cam.plan.cusps import cusp_heights
 from cam.plan.lines import follow_part, merge_straight, split_runs
 from cam.plan.part import SetupPart
@@ -79,7 +79,7 @@ def _pairs(lines: list[_Line]) -> list[tuple[int, int, np.ndarray]]:
 def raster_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
                   scallop_mm: float, chord_mm: float, region: Callable[[np.ndarray], np.ndarray],
                   max_slope_deg: float = 60.0, max_splits: int = 2,
-                  check_cancel: CheckCancel | None = None) -> RasterPasses:
+                  check_cancel: CheckCancel | None = None, progress: Progress | None = None) -> RasterPasses:
     """Raster passes over the part's shallow area inside `bounds` (machine xy).
 
     Parameters
@@ -99,6 +99,9 @@ def raster_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
     max_splits : int
         Times a line interval may be halved.
     check_cancel : callable, optional
+    progress : callable, optional
+        progress(fraction, message) line by line as the lines are laid, round by round as they are
+        split, and line by line as they become passes.
 
     Returns
     -------
@@ -106,6 +109,7 @@ def raster_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
     """
     r = part.radius_mm
     check_cancel = check_cancel or (lambda: None)
+    report = progress or (lambda fraction, message=None: None)
     x0, x1, y0, y1 = bounds
     step = float(flat_spacing(scallop_mm, r))
     dx = min(0.25 * step, 0.5)
@@ -113,10 +117,14 @@ def raster_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
     ys = np.arange(y0 + 0.5 * step, y1, step) if y1 - y0 > step else np.array([0.5 * (y0 + y1)])
     cos_max = float(np.cos(np.radians(max_slope_deg)))
     everywhere = np.ones(len(x), dtype=bool)
-    lines = [_line(part, x, float(y), everywhere, cos_max, region) for y in ys]
+    lines = []
+    for k, y in enumerate(ys):
+        report(0.4 * k / len(ys), f"raster line {k + 1} of {len(ys)}")
+        lines.append(_line(part, x, float(y), everywhere, cos_max, region))
     margin = max(int(np.ceil(0.5 * step / dx)), 1)
     for split in range(max_splits + 1):
         check_cancel()
+        report(0.4 + 0.4 * split / (max_splits + 1), f"raster: the cusps between {len(lines)} lines, round {split + 1}")
         cusps = list(_cusps(lines, x, part, scallop_mm, cos_max))
         # The largest cusp left between neighbouring lines as they stand. A gap (+inf: the balls do not
         # meet, or a hump between them) is no scallop: the coverage check sees it as material not cut.
@@ -127,7 +135,7 @@ def raster_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
             break
         lines += added
         worst = float("nan")  # the new lines are unchecked until the next round
-    return _passes(part, lines, x, chord_mm=chord_mm, worst=worst)
+    return _passes(part, lines, x, chord_mm=chord_mm, worst=worst, progress=progress_between(report, 0.8, 1.0))
 
 
 def _cusps(lines: list[_Line], x: np.ndarray, part: SetupPart, scallop_mm: float, cos_max: float):
@@ -148,10 +156,12 @@ def _cusps(lines: list[_Line], x: np.ndarray, part: SetupPart, scallop_mm: float
         yield a, b, over, h
 
 
-def _passes(part: SetupPart, lines: list[_Line], x: np.ndarray, *, chord_mm: float, worst: float) -> RasterPasses:
+def _passes(part: SetupPart, lines: list[_Line], x: np.ndarray, *, chord_mm: float, worst: float,
+            progress: Progress) -> RasterPasses:
     """Each line's runs as passes, alternating direction line by line, with their moves refined."""
     passes, chord = [], 0.0
     for k, ln in enumerate(sorted(lines, key=lambda ln: ln.y)):
+        progress(k / len(lines), f"raster passes: line {k + 1} of {len(lines)} on the part")
         for run in split_runs(ln.keep):
             pts = np.column_stack([x[run], np.full(run.stop - run.start, ln.y), ln.z[run]])
             pts, dev = follow_part(part, pts[::-1] if k % 2 else pts, chord_mm=chord_mm, lift_mm=0.5 * chord_mm)

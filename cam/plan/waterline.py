@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from skimage.measure import find_contours
 
-from cam import CheckCancel
+from cam import CheckCancel, Progress
 from cam.plan.cusps import cusp_heights
 from cam.plan.lines import GOUGE_TOL_MM, merge_straight, split_runs
 from cam.plan.part import SetupPart
@@ -178,7 +178,7 @@ def _level_runs(grid: _Grid, part: SetupPart, level: float, *, steep_cos: float,
 def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
                      scallop_mm: float, chord_mm: float, region: Callable[[np.ndarray], np.ndarray],
                      min_slope_deg: float = 45.0, max_splits: int = 2, grid_mm: float | None = None,
-                     check_cancel: CheckCancel | None = None) -> WaterlinePasses:
+                     check_cancel: CheckCancel | None = None, progress: Progress | None = None) -> WaterlinePasses:
     """Waterline passes over the part's steep area inside `bounds` (machine xy).
 
     Parameters
@@ -199,6 +199,9 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
         Spacing of the drop-cutter grid the contours are found on; default a quarter of the flat pass
         interval, at most 0.5 mm.
     check_cancel : callable, optional
+    progress : callable, optional
+        progress(fraction, message) level by level as the levels are found and as they become passes,
+        and round by round as they are split.
 
     Returns
     -------
@@ -206,18 +209,26 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
     """
     r = part.radius_mm
     check_cancel = check_cancel or (lambda: None)
+    report = progress or (lambda fraction, message=None: None)
     step = float(flat_spacing(scallop_mm, r))
     spacing = grid_mm or min(0.25 * step, 0.5)
+    report(0.0, "waterline: the drop-cutter grid")
     grid = _grid(part, bounds, spacing)
     steep_cos = float(np.cos(np.radians(min_slope_deg)))
     table = part.floor_z + r
     # From half an interval under the highest ball position down to the lowest above the table.
     z_top = float(grid.z.max())
-    levels = {float(z): _level_runs(grid, part, float(z), steep_cos=steep_cos, region=region, near=None, near_mm=0)
-              for z in np.arange(z_top - 0.5 * step, table, -step)}
+    levels = {}
+    zs = np.arange(z_top - 0.5 * step, table, -step)
+    for k, z in enumerate(zs):
+        report(0.1 + 0.4 * k / len(zs), f"waterline level {k + 1} of {len(zs)}")
+        levels[float(z)] = _level_runs(grid, part, float(z), steep_cos=steep_cos, region=region, near=None,
+                                       near_mm=0)
     resolution = spacing / 2**BISECT_ROUNDS
     for split in range(max_splits + 1):
         check_cancel()
+        report(0.5 + 0.2 * split / (max_splits + 1), f"waterline: the cusps between {len(levels)} levels, "
+                                                      f"round {split + 1}")
         over = list(_over(levels, part, scallop_mm + resolution, steep_cos))
         worst = max((h for *_, h in over), default=0.0)  # the largest finite cusp between the levels as they stand
         added = {}
@@ -230,7 +241,8 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
             break
         levels.update(added)
     passes, chord = [], resolution
-    for z, runs in sorted(levels.items(), reverse=True):
+    for k, (z, runs) in enumerate(sorted(levels.items(), reverse=True)):
+        report(0.7 + 0.3 * k / len(levels), f"waterline passes: level {k + 1} of {len(levels)} along the walls")
         runs, dev = _follow_walls(part, runs, z, chord_mm=chord_mm, spacing=spacing, lift_mm=0.5 * chord_mm)
         chord = max(chord, dev)
         passes += [merge_straight(np.column_stack([xy, np.full(len(xy), z)])) for xy in runs]
