@@ -32,27 +32,40 @@ class StageReport:
 
 
 class _Bar:
-    """A one-line progress bar on a terminal; plain lines when the stream is not a terminal."""
+    """A one-line progress bar on a terminal; plain lines when the stream is not a terminal (a log): one when
+    the fraction moved by `step` since the last line, or when a report comes `every_s` or more after it,
+    so that a log shows a long stage moving and what it is doing."""
 
-    def __init__(self, stream: TextIO, name: str) -> None:
+    def __init__(self, stream: TextIO, name: str, *, step: float = 0.05, every_s: float = 10.0,
+                 clock=time.monotonic) -> None:
         self.stream, self.name = stream, name
         self.tty = stream.isatty()
-        self.last = -1.0
+        self.step, self.every_s, self.clock = step, every_s, clock
+        self.last, self.last_at = -1.0, clock()
+        self.width = max(shutil.get_terminal_size((100, 24)).columns - 52, 20) if self.tty else 0
 
     def update(self, fraction: float, message: str | None = None) -> None:
         fraction = max(0.0, min(1.0, fraction))
         if self.tty:
             filled = int(fraction * 30)
+            text = message or ""
+            if len(text) > self.width:
+                text = text[:self.width - 1] + "…"
             self.stream.write(f"\r{self.name:<12} [{'#' * filled}{'.' * (30 - filled)}] {fraction:4.0%} "
-                              f"{(message or '')[:30]:<30}")
+                              f"{text:<{self.width}}")
             self.stream.flush()
-        elif fraction - self.last >= 0.25 or fraction >= 1.0 and self.last < 1.0:
+            return
+        now = self.clock()
+        if (fraction - self.last >= self.step - 1e-9 or now - self.last_at >= self.every_s
+                or fraction >= 1.0 and self.last < 1.0):
             self.stream.write(f"{self.name}: {fraction:.0%} {message or ''}\n")
-            self.last = fraction
+            self.stream.flush()
+            self.last, self.last_at = fraction, now
 
     def end(self, text: str) -> None:
-        self.stream.write(("\r" if self.tty else "") + f"{self.name:<12} {text}" + (" " * 40 if self.tty else "")
-                          + "\n")
+        line = f"{self.name:<12} {text}"
+        # On a terminal the line overwrites the bar: as wide as it at least.
+        self.stream.write(f"\r{line:<{self.width + 51}}\n" if self.tty else line + "\n")
         self.stream.flush()
 
 
