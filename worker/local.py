@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from cam import GeometryError
+from cam import CheckCancel, GeometryError, Progress
 from cam.io import write_json
 from core.config import Settings
 from core.params import JobParams
-from core.stages import load_stages, stage_names_until
+from core.stages import StageSpec, load_stages, stage_names_until
 from worker.context import StageCanceled, StageContext, StageError, StageSkipped
 from worker.stages import implementation
 
@@ -86,43 +86,59 @@ def run_local(input_path: Path, out_dir: Path, *, params: dict[str, Any], settin
     for spec in stages:
         if spec.name not in names:
             break
-        inputs = {"input": input_path}
-        inputs.update({n: out_dir / n for n in spec.inputs if (out_dir / n).is_file()})
         bar = _Bar(stream, spec.name)
-        scratch = out_dir / f".{spec.name}.tmp"
-        shutil.rmtree(scratch, ignore_errors=True)
-        scratch.mkdir()
-        ctx = StageContext(job_id="local", stage=spec.name, inputs=inputs, out_dir=scratch, params=params,
-                           settings={k: getattr(settings, k) for k in spec.settings}, progress=bar.update)
-        t0 = time.perf_counter()
-        try:
-            outputs = implementation(spec.name, settings.stage_plugins)(ctx)
-        except StageSkipped as exc:
-            for name, path in exc.outputs.items():
-                Path(path).replace(out_dir / name)  # passed on (denoise disabled: mesh.ply)
-            shutil.rmtree(scratch, ignore_errors=True)
-            reports.append(StageReport(spec.name, "skipped", time.perf_counter() - t0, tuple(exc.outputs),
-                                       error=str(exc) or None))
-            bar.end(f"skipped {exc}")
-            continue
-        except (StageError, GeometryError, StageCanceled) as exc:
-            for name, path in getattr(exc, "outputs", {}).items():
-                Path(path).replace(out_dir / name)  # kept for inspection
-            shutil.rmtree(scratch, ignore_errors=True)
-            reports.append(StageReport(spec.name, "failed", time.perf_counter() - t0, error=str(exc)))
-            bar.end(f"FAILED: {exc}")
+        report = run_stage(spec, input_path, out_dir, params=params, settings=settings, progress=bar.update,
+                           stream=stream)
+        reports.append(report)
+        if report.status == "succeeded":
+            bar.end(f"done in {report.seconds:.2f} s: {', '.join(report.outputs)}")
+        elif report.status == "skipped":
+            bar.end(f"skipped {report.error or ''}")
+        else:
+            bar.end(f"FAILED: {report.error}")
             break
-        except Exception as exc:  # noqa: BLE001 — our bug: the traceback goes to the stream, the run stops
-            shutil.rmtree(scratch, ignore_errors=True)
-            error = f"internal error in stage {spec.name} ({type(exc).__name__}: {exc})"
-            reports.append(StageReport(spec.name, "failed", time.perf_counter() - t0, error=error))
-            stream.write(traceback.format_exc())
-            bar.end(f"FAILED: {error}")
-            break
+    return reports
+
+
+def run_stage(spec: StageSpec, input_path: Path, out_dir: Path, *, params: JobParams, settings: Settings,
+              progress: Progress | None = None, check_cancel: CheckCancel | None = None,
+              stream: TextIO = sys.stderr) -> StageReport:
+    """Run one stage on the artifacts in `out_dir` (the upload is `input_path`) and store its outputs there.
+
+    The report's status is "succeeded", "skipped", "failed" or "canceled" (`check_cancel` raised
+    `StageCanceled`); a bug's traceback goes to `stream`. Nothing of a canceled or failed stage is stored
+    but the outputs it keeps for inspection.
+    """
+    inputs = {"input": input_path}
+    inputs.update({n: out_dir / n for n in spec.inputs if (out_dir / n).is_file()})
+    scratch = out_dir / f".{spec.name}.tmp"
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir()
+    ctx = StageContext(job_id="local", stage=spec.name, inputs=inputs, out_dir=scratch, params=params,
+                       settings={k: getattr(settings, k) for k in spec.settings},
+                       progress=progress or (lambda fraction, message=None: None),
+                       check_cancel=check_cancel or (lambda: None))
+    t0 = time.perf_counter()
+    try:
+        outputs = implementation(spec.name, settings.stage_plugins)(ctx)
+    except StageSkipped as exc:
+        for name, path in exc.outputs.items():
+            Path(path).replace(out_dir / name)  # passed on (denoise disabled: mesh.ply)
+        return StageReport(spec.name, "skipped", time.perf_counter() - t0, tuple(exc.outputs),
+                           error=str(exc) or None)
+    except StageCanceled as exc:
+        return StageReport(spec.name, "canceled", time.perf_counter() - t0, error=str(exc) or "canceled")
+    except (StageError, GeometryError) as exc:
+        for name, path in getattr(exc, "outputs", {}).items():
+            Path(path).replace(out_dir / name)  # kept for inspection
+        return StageReport(spec.name, "failed", time.perf_counter() - t0, error=str(exc))
+    except Exception as exc:  # noqa: BLE001 — our bug: the traceback goes to the stream, the run stops
+        stream.write(traceback.format_exc())
+        return StageReport(spec.name, "failed", time.perf_counter() - t0,
+                           error=f"internal error in stage {spec.name} ({type(exc).__name__}: {exc})")
+    else:
         for name, path in outputs.items():
             Path(path).replace(out_dir / name)  # same folder: an atomic rename
+        return StageReport(spec.name, "succeeded", time.perf_counter() - t0, tuple(outputs))
+    finally:
         shutil.rmtree(scratch, ignore_errors=True)
-        seconds = time.perf_counter() - t0
-        reports.append(StageReport(spec.name, "succeeded", seconds, tuple(outputs)))
-        bar.end(f"done in {seconds:.2f} s: {', '.join(outputs)}")
-    return reports

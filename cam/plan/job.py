@@ -268,7 +268,7 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     progress(0.01, "sampling the part")
     samples = sample_surface(vertices, faces, spacing_mm=width / 3)
     choice = choose_setups(samples, vertices, faces, tool_radius_mm=r, max_setups=toolpath.max_setups,
-                           given=list(given_setups))
+                           given=list(given_setups), check_cancel=check_cancel)
     if not choice.setups or not choice.any().any():
         raise GeometryError(f"no setup reaches any of the part with a ball of radius {r} mm")
     check_cancel()

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cam import CheckCancel
 from cam.gcode.setup import Setup
 from cam.mesh.samples import SurfaceSamples
 from cam.plan.part import setup_part
@@ -114,7 +115,7 @@ def _candidate_axes(normals: np.ndarray, area: np.ndarray, given: list[Setup], r
 
 def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, *, tool_radius_mm: float,
                   max_setups: int, given: list[Setup] = (), rng: np.random.Generator | None = None,
-                  min_gain: float = 1e-3) -> SetupReach:
+                  min_gain: float = 1e-3, check_cancel: CheckCancel | None = None) -> SetupReach:
     """Up to `max_setups` setups that together reach the most of the part, greedily.
 
     Parameters
@@ -131,6 +132,8 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
         For the k-means of the normals; default seeded with 0.
     min_gain : float
         A setup is added only while it reaches at least this share of the part's area more.
+    check_cancel : callable, optional
+        cam's callback (see `cam`), called before each setup's reach is computed.
 
     Returns
     -------
@@ -138,6 +141,7 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
         Ids are 1, 2, ... in the order chosen.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
+    check_cancel = check_cancel or (lambda: None)
     axes = _candidate_axes(samples.normals, samples.area, list(given), rng)
     # Candidates are scored on an even subset of the samples (a few thousand tell the shares apart);
     # the setups chosen get their reach on all of them.
@@ -145,6 +149,7 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
     total = float(few.area.sum())
     candidates = []
     for k, axis in enumerate(axes):
+        check_cancel()
         setup = given[k] if k < len(given) else setup_for_axis(0, axis, vertices)
         candidates.append((setup, reachable(few, vertices, faces, setup, tool_radius_mm=tool_radius_mm)))
     chosen: list[tuple[Setup, np.ndarray]] = []
@@ -163,5 +168,8 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
         chosen.append((Setup(id=len(chosen) + 1, rotation=setup.rotation, translation=setup.translation), reach))
         covered |= reach
     setups = [s for s, _ in chosen]
-    return SetupReach(setups=setups, reach=[reachable(samples, vertices, faces, s, tool_radius_mm=tool_radius_mm)
-                                            for s in setups])
+    reach = []
+    for s in setups:
+        check_cancel()
+        reach.append(reachable(samples, vertices, faces, s, tool_radius_mm=tool_radius_mm))
+    return SetupReach(setups=setups, reach=reach)

@@ -30,6 +30,8 @@ __all__ = ["PartMeasurement", "ProgramIn", "REACH_TOL_MM", "measure_part", "vert
 #: The ball held this far off a sample counts as touching it (a ball touching a wall touches the wall's
 #: top edge too; whether that blocks it would otherwise be round-off).
 REACH_TOL_MM = 2e-3
+#: Samples measured between two cancel checks (each sample's answer is its own: chunks change nothing).
+CHUNK = 20_000
 
 
 @dataclass(frozen=True)
@@ -67,29 +69,41 @@ def _frame(samples: SurfaceSamples, setup: Setup) -> tuple[np.ndarray, np.ndarra
     return setup.to_machine(samples.points), setup.to_machine(samples.normals, direction=True)
 
 
+def _in_chunks(fn, count: int, check_cancel: CheckCancel) -> tuple[np.ndarray, ...]:
+    """fn(slice) -> arrays over that slice of `count` samples, called CHUNK samples at a time, concatenated."""
+    parts = []
+    for start in range(0, max(count, 1), CHUNK):
+        check_cancel()
+        parts.append(fn(slice(start, start + CHUNK)))
+    return tuple(np.concatenate(arrays) for arrays in zip(*parts))
+
+
 def _reach(vertices: np.ndarray, faces: np.ndarray, samples: SurfaceSamples, setups: list[Setup],
-           r: float) -> np.ndarray:
+           r: float, check_cancel: CheckCancel) -> np.ndarray:
     """bool (k,): reached by a ball of radius r from some setup (drop-cutter against the part's triangles)."""
     out = np.zeros(len(samples.area), dtype=bool)
     for setup in setups:
         p, n = _frame(samples, setup)
         V = setup.to_machine(vertices)
         centre = p + (r + REACH_TOL_MM) * n
-        lowest = drop_ball(drop_index(V, faces, radius_mm=r), centre[:, :2])
+        index = drop_index(V, faces, radius_mm=r)
+        lowest, = _in_chunks(lambda s: (drop_ball(index, centre[s, :2]),), len(centre), check_cancel)
         out |= (lowest <= centre[:, 2] + REACH_TOL_MM) & (centre[:, 2] - r >= float(V[:, 2].min()) - REACH_TOL_MM)
     return out
 
 
-def _sweeps(item: ProgramIn, samples: SurfaceSamples, *, reach_mm: float, margin_mm: float
-            ) -> tuple[np.ndarray, float, float, float]:
+def _sweeps(item: ProgramIn, samples: SurfaceSamples, *, reach_mm: float, margin_mm: float,
+            check_cancel: CheckCancel) -> tuple[np.ndarray, float, float, float]:
     """One program on the samples: material left (k,), deepest cut into the part by cutting moves and by
     rapids, and how far rapids come inside the margin, mm."""
     r = item.tool_radius_mm
     p, n = _frame(samples, item.setup)
     z = np.array([0.0, 0.0, r])
     a, b, rapid = item.program.start + z, item.program.end + z, item.program.rapid
-    left, gouge = Sweep(a[~rapid], b[~rapid], r, step=r / 2).probe(p, n, reach_mm)
-    _, inside_margin = Sweep(a[rapid], b[rapid], r + margin_mm, step=r / 2).probe(p, n, 0.0)
+    cutting = Sweep(a[~rapid], b[~rapid], r, step=r / 2)
+    left, gouge = _in_chunks(lambda s: cutting.probe(p[s], n[s], reach_mm), len(p), check_cancel)
+    rapids = Sweep(a[rapid], b[rapid], r + margin_mm, step=r / 2)
+    _, inside_margin = _in_chunks(lambda s: rapids.probe(p[s], n[s], 0.0), len(p), check_cancel)
     rapid_gouge = np.maximum(inside_margin - margin_mm, 0.0)
     return left, float(gouge.max(initial=0.0)), float(rapid_gouge.max(initial=0.0)), \
         float(inside_margin.max(initial=0.0))
@@ -127,14 +141,14 @@ def measure_part(vertices: np.ndarray, faces: np.ndarray, programs: list[Program
     check_cancel = check_cancel or (lambda: None)
     samples = sample_surface(vertices, faces, spacing_mm=spacing_mm)
     area, total = samples.area, float(samples.area.sum())
-    reach_main = _reach(vertices, faces, samples, setups, tool_radius_mm)
-    reach_rest = _reach(vertices, faces, samples, setups, rest_radius_mm) if rest_radius_mm else None
+    reach_main = _reach(vertices, faces, samples, setups, tool_radius_mm, check_cancel)
+    reach_rest = _reach(vertices, faces, samples, setups, rest_radius_mm, check_cancel) if rest_radius_mm else None
     left = np.full(len(area), np.inf)
     per_program, gouge, rapid_gouge = [], 0.0, 0.0
     measured_to = max(4 * target_mm, 0.25 * tool_radius_mm)
     for item in programs:
-        check_cancel()
-        mine, g, rg, margin_in = _sweeps(item, samples, reach_mm=measured_to, margin_mm=rapid_margin_mm)
+        mine, g, rg, margin_in = _sweeps(item, samples, reach_mm=measured_to, margin_mm=rapid_margin_mm,
+                                         check_cancel=check_cancel)
         left = np.minimum(left, mine)
         gouge, rapid_gouge = max(gouge, g), max(rapid_gouge, rg)
         per_program.append({"program": item.name, "setup": item.setup.id, "role": item.role,
