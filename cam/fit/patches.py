@@ -316,13 +316,15 @@ def _fit_free(problem: _Problem, fit_opts: dict, each: _Each) -> list[Refined]:
     """Every patch fitted on its own (free fits, refined for their borders, where the curves are fitted)."""
     return each.map(lambda k, cc, pr: _fit_free_patch(problem, k, None, {**fit_opts, "check_cancel": cc,
                                                                           "progress": pr}),
-                    list(range(len(problem.grids))), 0.0, 0.35, "fitting each patch on its own")
+                    list(range(len(problem.grids))), 0.0, 0.33, "fitting each patch on its own")
 
 
 def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, each: _Each) -> list[Refined]:
     """The free fits, with those whose samples moved to or from a neighbour fitted again from where they were."""
     moved = sorted(_reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free],
-                             problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel))
+                             problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel,
+                             progress=_labelled(each.report, 0.33, 0.35, "moving samples beyond a border to a "
+                                                "neighbour that is closer")))
     refits = each.map(lambda k, cc, pr: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "check_cancel": cc,
                                                                                   "progress": pr}),
                       moved, 0.35, 0.4, "fitting again the patches whose samples moved")
@@ -377,7 +379,7 @@ def _thin(owner: np.ndarray, grids: list[np.ndarray], per_quad: float | None) ->
 
 
 def _reassign(P, owner, su, sv, fits, layout: Layout, tolerance_mm: float, *,
-              check_cancel: CheckCancel | None = None) -> set[int]:
+              check_cancel: CheckCancel | None = None, progress: Progress | None = None) -> set[int]:
     """Move samples that lie beyond their patch's border to a neighbour that is closer; returns changed patches.
 
     P float64 (n, 3) mm; owner int (n,) patch per sample, su, sv float64 (n,) its parameters (quads):
@@ -388,6 +390,8 @@ def _reassign(P, owner, su, sv, fits, layout: Layout, tolerance_mm: float, *,
     for k, fit in enumerate(fits):
         if check_cancel is not None:
             check_cancel()
+        if progress is not None:
+            progress(k / len(fits), f"patch {k + 1} of {len(fits)}")
         idx = np.flatnonzero(before == k)
         far = fit.clamped[: idx.size] & (fit.distance[: idx.size] > 0.5 * tolerance_mm)
         cand = idx[far]

@@ -231,24 +231,30 @@ def sample_errors(P: np.ndarray, owner: np.ndarray, fits: list[SurfaceFit], layo
     err = np.full(len(P), np.nan)
     groups = [np.flatnonzero(owner == k) for k in range(len(fits))]
     todo = [k for k in range(len(fits)) if groups[k].size]
-    measured = map_forked(lambda i, cc: _patch_errors(P[groups[todo[i]]], todo[i], fits, layout, tolerance_mm),
-                          len(todo), processes=processes, check_cancel=check_cancel, progress=progress)
+    measured = map_forked(lambda i, cc, pr: _patch_errors(P[groups[todo[i]]], todo[i], fits, layout, tolerance_mm,
+                                                          progress=pr),
+                          len(todo), processes=processes, check_cancel=check_cancel, progress=progress,
+                          item_progress=True)
     for k, d in zip(todo, measured):
         err[groups[k]] = d
     return err
 
 
-def _patch_errors(P: np.ndarray, k: int, fits: list[SurfaceFit], layout: Layout, tolerance_mm: float) -> np.ndarray:
+def _patch_errors(P: np.ndarray, k: int, fits: list[SurfaceFit], layout: Layout, tolerance_mm: float, *,
+                  progress: Progress) -> np.ndarray:
     """Distances (n,) mm of patch k's samples P (n, 3) to its surface, or to a neighbour's where closer."""
     fit = fits[k]
+    neighbours = layout.neighbours[k]
+    progress(0.0, f"patch {k + 1}: its {len(P)} samples on its own surface")
     d = distance_to_surface(fit.knots_u, fit.knots_v, fit.control_points, P, search_above=tolerance_mm)[2]
     # Every far sample, not only those whose foot is on the border: where the quad mesh cuts
     # a corner of the part, a sample can take a strip's quad and a foot inside the strip
     # while the neighbour's surface passes through it.
-    for nb in layout.neighbours[k]:
+    for i, nb in enumerate(neighbours):
         far = np.flatnonzero(d > tolerance_mm)
         if not far.size:
             break
+        progress((i + 1) / (len(neighbours) + 1), f"patch {k + 1}: {far.size} far samples on neighbour {nb + 1}")
         f = fits[nb]
         d[far] = np.minimum(d[far], distance_to_surface(f.knots_u, f.knots_v, f.control_points, P[far],
                                                         search_above=tolerance_mm)[2])
