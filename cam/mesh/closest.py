@@ -1,19 +1,19 @@
 """Exact closest points on a triangle mesh: projections, Hausdorff distances and every fit error.
 
-A k-d tree on triangle centroids proposes candidates; a candidate set is only
-accepted once it provably holds the closest triangle (every triangle whose
-centroid lies farther than the best distance found plus the largest
-centroid-to-corner radius is excluded), so the answer is exact, not a
-nearest-vertex approximation. Within a set, a triangle is tested only when its
-centroid lies within the best distance so far plus its own radius.
+Triangles sit in the leaves of a bounding-volume tree built once per mesh; a
+query descends it nearer box first and skips every box farther than the best
+distance found, so the answer is exact, not a nearest-vertex approximation. The
+search is compiled (`_closestkernel`) and runs the queries in parallel; its
+arithmetic is `closest_on_triangles`'s, bit for bit.
 
-That bound is only as tight as the largest triangle: on a CAD mesh, where a few
-triangles span whole faces beside many small ones, every query would take in
-most of the mesh. Triangles with a radius over a fiftieth of the mesh's diagonal
-are therefore indexed as pieces (halved across their longest edge until small
-enough); a piece's closest point is its triangle's, reported with the
-triangle's index and barycentrics, so the answer is the same. A point equally
-near two triangles gets the one with the nearer centroid, however they were cut.
+A CAD mesh has a few triangles spanning whole faces beside many small ones; a
+box around a large one overlaps most of the tree and is near every query.
+Triangles with a radius over a fiftieth of the mesh's diagonal are therefore
+indexed as pieces (halved across their longest edge until small enough); a
+piece's closest point is its triangle's, reported with the triangle's index and
+barycentrics, so the answer is the same. A point equally near two triangles
+gets the one with the nearer centroid (then the lower index), however they were
+cut and in whatever order the search met them.
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from cam.mesh._closestkernel import closest_queries, make_tree
 
 __all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles", "triangle_normals"]
 
@@ -39,10 +40,6 @@ class MeshIndex:
         Vertex coordinates in mm.
     faces : (m, 3) int64
         Triangles as vertex indices.
-    vertex_tree : scipy.spatial.cKDTree
-        The vertices that some triangle uses.
-    centroid_tree : scipy.spatial.cKDTree
-        The centroids of the indexed pieces (each triangle, or the pieces a large one is cut into).
     centroids : (m, 3) float64
         Each triangle's centroid, mm (it breaks ties between equally near triangles).
     radius : float
@@ -55,18 +52,19 @@ class MeshIndex:
         Each piece's corners, mm.
     piece_bary : (p, 3, 3) float64
         Each piece's corners as barycentric weights of its triangle's corners (rows: corners).
+    tree : tuple
+        The pieces' bounding-volume tree (`_closestkernel.make_tree`).
     """
 
     vertices: np.ndarray  # float64 (n, 3), mm
     faces: np.ndarray  # int64 (m, 3)
-    vertex_tree: cKDTree
-    centroid_tree: cKDTree
     centroids: np.ndarray  # float64 (m, 3): each triangle's centroid, mm
     radius: float  # largest centroid-to-corner distance of a piece, mm
     radii: np.ndarray  # float64 (p,)
     piece_face: np.ndarray  # int64 (p,)
     piece_corners: np.ndarray  # float64 (p, 3, 3)
     piece_bary: np.ndarray  # float64 (p, 3, 3)
+    tree: tuple
 
 
 def _radii(corners: np.ndarray) -> np.ndarray:
@@ -108,7 +106,7 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
     Returns
     -------
     index : MeshIndex
-        The mesh with its k-d trees and centroid radii.
+        The mesh with its pieces bucketed.
 
     Raises
     ------
@@ -131,9 +129,9 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
     corners, bary, face = _cut_large(corners, np.broadcast_to(np.eye(3), (len(F), 3, 3)).copy(),
                                      np.arange(len(F), dtype=np.int64), max(limit, 1e-12))
     radii = _radii(corners)
-    return MeshIndex(vertices=V, faces=F, vertex_tree=cKDTree(V[used]), centroid_tree=cKDTree(corners.mean(axis=1)),
-                     centroids=V[F].mean(axis=1), radius=float(radii.max()), radii=radii, piece_face=face,
-                     piece_corners=corners, piece_bary=bary)
+    return MeshIndex(vertices=V, faces=F, centroids=V[F].mean(axis=1), radius=float(radii.max()), radii=radii,
+                     piece_face=face, piece_corners=corners, piece_bary=bary,
+                     tree=make_tree(corners))
 
 
 def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
@@ -237,8 +235,7 @@ def _closest_on_edges(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
     return points[best, rows], barys[best, rows]
 
 
-def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def closest_points(index: MeshIndex, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closest mesh points to `points`, exact (see the module docstring).
 
     Parameters
@@ -247,8 +244,6 @@ def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
         The mesh.
     points : (n, 3) array_like of float
         Query points in mm, the mesh's frame.
-    chunk : int, optional
-        Points queried at once, to bound memory (default 20000).
 
     Returns
     -------
@@ -261,68 +256,11 @@ def closest_points(index: MeshIndex, points: np.ndarray, *, chunk: int = 20000
     barycentric : (n, 3) float64
         Its barycentric coordinates in that triangle.
     """
-    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    P = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    if not np.isfinite(P).all():
+        raise ValueError("closest_points needs finite query points")
     n = len(P)
-    out_pt, out_d = np.empty((n, 3)), np.empty(n)
-    out_f, out_b = np.empty(n, dtype=np.int64), np.empty((n, 3))
-    for start in range(0, n, chunk):
-        sl = slice(start, min(n, start + chunk))
-        out_pt[sl], out_d[sl], out_f[sl], out_b[sl] = _closest_chunk(index, P[sl])
-    return out_pt, out_d, out_f, out_b
-
-
-def _closest_chunk(index: MeshIndex, P: np.ndarray):
-    n, m = len(P), len(index.piece_face)
-    # The nearest vertex lies on the mesh, so its distance bounds the answer from above from the start.
-    best = index.vertex_tree.query(P)[0]
-    result = (np.empty((n, 3)), np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros((n, 3)))
-    todo = np.arange(n)
-    k, seen, first_round = min(8, m), np.zeros(n), True
-    while todo.size:
-        dist, cand = index.centroid_tree.query(P[todo], k=k)
-        dist, cand = dist.reshape(len(todo), -1), cand.reshape(len(todo), -1)
-        fresh = dist >= seen[todo][:, None]  # nearer centroids were in the last round's set (ties may not)
-        if first_round:
-            # The nearest centroid's triangle first, so the bound below starts tight.
-            _take(index, P, result, best, todo, cand, np.arange(len(todo)), np.zeros(len(todo), dtype=np.int64))
-            fresh[:, 0], first_round = False, False
-        # A triangle can be as near as `best` only if its centroid is within best plus its own radius.
-        rows, cols = np.nonzero(fresh & (dist - index.radii[cand] <= best[todo][:, None]))
-        _take(index, P, result, best, todo, cand, rows, cols)
-        # Complete when the k-th centroid is farther than the best distance plus the largest
-        # centroid-to-corner radius: no triangle not yet seen can come nearer (or all were taken).
-        done = (dist[:, -1] > best[todo] + index.radius) | (k >= m)
-        seen[todo] = dist[:, -1]
-        todo = todo[~done]
-        k = min(2 * k, m)
-    return result
-
-
-def _take(index: MeshIndex, P: np.ndarray, result: tuple, best: np.ndarray, todo: np.ndarray, cand: np.ndarray,
-          rows: np.ndarray, cols: np.ndarray) -> None:
-    """Test the candidate triangles cand[rows, cols] of the points todo[rows]; keep each point's nearest."""
-    if not rows.size:
-        return
-    piece = cand[rows, cols]
-    tri = index.piece_corners[piece]
-    pp = P[todo[rows]]
-    q, bary = closest_on_triangles(pp, tri[:, 0], tri[:, 1], tri[:, 2])
-    bary = np.einsum("ij,ijk->ik", bary, index.piece_bary[piece])  # the piece's weights → its triangle's
-    d = np.linalg.norm(q - pp, axis=1)
-    face = index.piece_face[piece]
-    # Equally near triangles (a point over an edge) go to the one with the nearest centroid, however the
-    # mesh was cut into pieces: callers that assign points to faces see the answer of the whole triangles.
-    centre = np.linalg.norm(index.centroids[face] - pp, axis=1)
-    nearest = np.full(rows.max() + 1, np.inf)
-    np.minimum.at(nearest, rows, d)
-    tied = d <= nearest[rows] + TIE_MM
-    order = np.lexsort((centre, ~tied, rows))  # by point, the nearest centroid among the nearest first
-    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
-    at = todo[rows[first]]
-    held, was = result[1][at], result[2][at]
-    held_centre = np.linalg.norm(index.centroids[was] - pp[first], axis=1)
-    better = (d[first] < held - TIE_MM) | ((d[first] <= held + TIE_MM) & (centre[first] < held_centre))
-    at, first = at[better], first[better]
-    result[0][at], result[1][at] = q[first], d[first]
-    result[2][at], result[3][at] = face[first], bary[first]
-    best[at] = np.minimum(best[at], d[first])
+    out = (np.empty((n, 3)), np.empty(n), np.empty(n, dtype=np.int64), np.empty((n, 3)))
+    closest_queries(P, index.piece_corners, index.piece_bary, index.piece_face, index.centroids, *index.tree,
+                    TIE_MM, *out)
+    return out
