@@ -6,8 +6,10 @@ import functools
 import os
 from pathlib import Path
 
-from pydantic import AliasChoices, Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import AliasChoices, Field, field_validator
+from typing import Annotated
+
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 class Settings(BaseSettings):
@@ -66,6 +68,12 @@ class Settings(BaseSettings):
         description="Hard limit of every stage; unset: each stage's own (core.stages). The soft limit that "
                     "fails a stage cleanly is 95 % of it.",
     )
+    stage_time_limits: Annotated[dict[str, float], NoDecode] = Field(
+        default_factory=dict,
+        validation_alias=AliasChoices("CLOUD2CNC_STAGE_TIME_LIMITS", "stage_time_limits"),
+        description='Hard limits of single stages, s, as "fit=2400,plan=1200"; they win over '
+                    "CLOUD2CNC_STAGE_TIME_LIMIT_S for the stages they name.",
+    )
     worker_max_memory_mb: int = Field(
         default=4096, ge=64,
         validation_alias=AliasChoices("CLOUD2CNC_WORKER_MAX_MEMORY_MB", "worker_max_memory_mb"),
@@ -104,6 +112,31 @@ class Settings(BaseSettings):
         validation_alias=AliasChoices("CLOUD2CNC_PIPELINE", "pipeline"),
         description="Comma-separated stages a job runs (empty: all of them, in DESIGN order).",
     )
+
+    @field_validator("stage_time_limits", mode="before")
+    @classmethod
+    def _parse_stage_time_limits(cls, value):
+        """"fit=2400,plan=1200" (what an environment variable holds) as a mapping; a mapping as it is."""
+        if not isinstance(value, str):
+            return value
+        limits = {}
+        for item in filter(None, (part.strip() for part in value.split(","))):
+            name, _, seconds = (x.strip() for x in item.partition("="))
+            try:
+                limits[name] = float(seconds)
+            except ValueError:
+                limits[name] = 0.0
+            if not name or not limits[name] > 0:
+                raise ValueError(f"CLOUD2CNC_STAGE_TIME_LIMITS takes stage=seconds pairs with seconds > 0, "
+                                 f"separated by commas; got {item!r}")
+        return limits
+
+    def time_limit_s(self, stage: str, own_s: float) -> float:
+        """The hard limit of stage `stage` (its own limit `own_s`): this stage's setting, else every stage's,
+        else its own."""
+        if stage in self.stage_time_limits:
+            return float(self.stage_time_limits[stage])
+        return float(self.stage_time_limit_s) if self.stage_time_limit_s is not None else float(own_s)
 
     @property
     def max_upload_bytes(self) -> int:

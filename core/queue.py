@@ -21,7 +21,7 @@ def celery_config(settings: Settings) -> dict:
     from core.stages import DEFAULT_STAGE_LIMIT_S
 
     # Each stage's task carries its own limit (enqueue_job); this is the fallback and the redelivery bound.
-    hard = max(settings.stage_time_limit_s or 0.0, DEFAULT_STAGE_LIMIT_S)
+    hard = max(settings.stage_time_limit_s or 0.0, *settings.stage_time_limits.values(), DEFAULT_STAGE_LIMIT_S)
     conf = {
         "broker_url": settings.celery_broker_url,
         "task_default_queue": QUEUE,
@@ -92,7 +92,7 @@ def enqueue_stages(app: Celery, settings: Settings, job_id: str, stages: Iterabl
     from core.stages import load_stages, time_limit_s
 
     specs = {s.name: s for s in load_stages(settings.stage_plugins, settings.pipeline)}
-    enqueue_chain(app, job_id, [(name, task_id, time_limit_s(specs[name], settings.stage_time_limit_s))
+    enqueue_chain(app, job_id, [(name, task_id, time_limit_s(specs[name], settings))
                                 for name, task_id in stages])
 
 

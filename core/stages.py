@@ -10,9 +10,12 @@ import hashlib
 import importlib
 import json
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from core.params import JobParams
+
+if TYPE_CHECKING:
+    from core.config import Settings
 
 #: Program files plan may write: one per setup (at most 4) and per ball (the rest ball's end in -rest); the
 #: names `cam.plan.program_name` gives (core loads no geometry code, so they are listed here; a test compares).
@@ -148,12 +151,11 @@ def load_stages(plugins: str = "", only: str = "") -> tuple[StageSpec, ...]:
 DEFAULT_STAGE_LIMIT_S = 3600.0
 
 
-def time_limit_s(spec: StageSpec, configured_s: float | None) -> float:
-    """The hard time limit of a stage in seconds: the operator's (`Settings.stage_time_limit_s`) when set,
-    else the stage's own, else `DEFAULT_STAGE_LIMIT_S`."""
-    if configured_s is not None:
-        return float(configured_s)
-    return spec.time_limit_s if spec.time_limit_s is not None else DEFAULT_STAGE_LIMIT_S
+def time_limit_s(spec: StageSpec, settings: Settings) -> float:
+    """The hard time limit of a stage in seconds: the operator's for this stage or for every stage
+    (`Settings.time_limit_s`), else the stage's own, else `DEFAULT_STAGE_LIMIT_S`."""
+    return settings.time_limit_s(spec.name, spec.time_limit_s if spec.time_limit_s is not None
+                                 else DEFAULT_STAGE_LIMIT_S)
 
 
 def stage_names_until(stages: tuple[StageSpec, ...], until: str | None) -> list[str]:

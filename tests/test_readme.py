@@ -22,3 +22,12 @@ def test_relative_links_resolve_inside_the_clone(document: Path):
         if not resolved.is_relative_to(ROOT) or not resolved.exists():
             bad.append(target)
     assert not bad, f"{document.name} links to paths a user's clone does not have: {bad}"
+
+
+def test_the_configuration_table_states_each_stages_own_time_limit():
+    from core.stages import load_stages
+
+    row = next(line for line in (ROOT / "README.md").read_text().splitlines()
+               if line.startswith("| `CLOUD2CNC_STAGE_TIME_LIMIT_S` |"))
+    stated = {name: float(seconds) for name, seconds in re.findall(r"(\w+) (\d+) s", row.split("|")[2])}
+    assert stated == {s.name: s.time_limit_s for s in load_stages()}

@@ -182,12 +182,12 @@ def _failure_detail(exc: BaseException, spec: StageSpec, settings: Settings, job
     """What the user reads about an exception that is not theirs to act on: a time limit (where the stage
     was, from its `last` progress, and what makes it faster), or our bug."""
     if type(exc).__name__ == "SoftTimeLimitExceeded":
-        limit = time_limit_s(spec, settings.stage_time_limit_s)
+        limit = time_limit_s(spec, settings)
         fraction, message = last
         where = f"{100 * fraction:.0f} %" + (f" ({message})" if message else "")
         faster = f"; {spec.faster} make it faster" if spec.faster else ""
         return (f"stage {spec.name} ran longer than its limit of {limit:.0f} s; it had got to {where}{faster}; "
-                "an operator can raise the limit (CLOUD2CNC_STAGE_TIME_LIMIT_S)")
+                f"an operator can raise the limit (CLOUD2CNC_STAGE_TIME_LIMITS={spec.name}=SECONDS)")
     ref = uuid.uuid4().hex[:12]
     log.exception("stage %s of job %s crashed (ref %s)", spec.name, job_id, ref)
     return f"internal error in stage {spec.name} (reference {ref}); the operator's log has details"

@@ -55,10 +55,11 @@ def test_a_repeated_message_for_a_finished_stage_continues_the_chain(setup):
     assert before == after and after["attempts"] == 1
 
 
-@pytest.mark.parametrize(("configured", "limit"), [(None, "120 s"), (600.0, "600 s")])
-def test_a_stage_out_of_time_says_where_it_got_to_and_what_makes_it_faster(tmp_path, configured, limit):
+@pytest.mark.parametrize(("configured", "per_stage", "limit"),
+                         [(None, {}, "120 s"), (600.0, {}, "600 s"), (600.0, {"overtime": 300.0}, "300 s")])
+def test_a_stage_out_of_time_says_where_it_got_to_and_what_makes_it_faster(tmp_path, configured, per_stage, limit):
     settings = Settings(data_dir=tmp_path / "o", min_points=10, stage_plugins="tests.plugins.overtime",
-                        pipeline="ingest,overtime", stage_time_limit_s=configured)
+                        pipeline="ingest,overtime", stage_time_limit_s=configured, stage_time_limits=per_stage)
     with TestClient(create_app(settings, reconcile=False)) as client:
         job_id = client.post("/v1/jobs", files={"file": ("a.xyz", xyz_bytes(50))}).json()["id"]
         run_stage(settings, job_id, "ingest")
@@ -66,3 +67,16 @@ def test_a_stage_out_of_time_says_where_it_got_to_and_what_makes_it_faster(tmp_p
         detail = client.get(f"/v1/jobs/{job_id}").json()["stages"][1]["error"]["detail"]
     assert detail.startswith(f"stage overtime ran longer than its limit of {limit}; it had got to 45 % (step two of five)")
     assert "a larger overtime.step make it faster" in detail and "smaller input" not in detail
+    assert detail.endswith("an operator can raise the limit (CLOUD2CNC_STAGE_TIME_LIMITS=overtime=SECONDS)")
+
+
+def test_per_stage_time_limits_are_read_from_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv("CLOUD2CNC_STAGE_TIME_LIMITS", "fit=2400, plan=1200")
+    monkeypatch.setenv("CLOUD2CNC_STAGE_TIME_LIMIT_S", "1000")
+    settings = Settings(data_dir=tmp_path)
+    assert settings.stage_time_limits == {"fit": 2400.0, "plan": 1200.0}
+    assert [settings.time_limit_s(name, 900.0) for name in ("fit", "plan", "verify")] == [2400.0, 1200.0, 1000.0]
+    for bad in ("fit", "fit=soon", "fit=0", "=60"):
+        monkeypatch.setenv("CLOUD2CNC_STAGE_TIME_LIMITS", bad)
+        with pytest.raises(ValueError, match="stage=seconds"):
+            Settings(data_dir=tmp_path)
