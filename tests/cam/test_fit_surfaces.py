@@ -235,9 +235,11 @@ def test_a_patch_one_quad_wide_refines_in_its_middle():
     # A patch that thin owns few samples (Block's patch 41 owned none), so only the surface's own
     # distance from the mesh shows the bump. A band of half a unit along each fixed border, where that
     # distance does not split spans, covers all of a one-unit domain; the refinement must still look at
-    # its middle. (With that band the fit stays 0.18 mm off, with no round tried.)
+    # its middle. (With that band the fit stays 0.18 mm off, with no round tried.) The unrefined fit is
+    # 0.08 mm off: lattice points on the grid's diagonals lie exactly on an edge of two mirror-image triangles,
+    # whose normals differ, and which of the two a foot takes is a tie (closest_points: the lower index).
     _, done = _bump_behind_flat_borders()
-    assert done.unrefined.max_error > 0.1
+    assert done.unrefined.max_error > 2 * 0.032  # well over the tolerance: the refinement has work to do
     assert done.rounds >= 1 and done.fit.max_error <= 0.032
     # The borders stay the given curves.
     np.testing.assert_array_equal(done.fit.control_points[[0, -1]][..., 2], 0.0)
