@@ -77,11 +77,13 @@ def test_lifecycle_upload_run_download_rerun_delete(backend, start_worker, clien
 
 
 def test_cancel_running_job(backend, start_worker, client_for):
-    start_worker(backend, CLOUD2CNC_TEST_DWELL_S="60")
+    # One worker: the job queued behind the canceled one starts once the cancel bites.
+    start_worker(backend, CLOUD2CNC_TEST_DWELL_S="60", CLOUD2CNC_TEST_DWELL_MIN_POINTS="100")
     client = client_for(backend)
     job = _submit(client, xyz_bytes(200)).json()
     wait_for(client, job["id"], ("running",), timeout_s=90,
              predicate=lambda b: _stage(b, "dwell")["status"] == "running" and _stage(b, "dwell")["progress"] > 0)
+    queued = _submit(client, xyz_bytes(50)).json()
     t0 = time.monotonic()
     r = client.post(f"/v1/jobs/{job['id']}/cancel")
     assert r.status_code == 202 and r.json()["status"] == "canceled"
@@ -90,6 +92,7 @@ def test_cancel_running_job(backend, start_worker, client_for):
     assert time.monotonic() - t0 < 20
     assert _stage(body, "ingest")["status"] == "succeeded"
     assert client.post(f"/v1/jobs/{job['id']}/cancel").status_code == 409
+    wait_for(client, queued["id"], ("succeeded",), timeout_s=60)
 
 
 def test_cancel_queued_job_never_runs(embedded, start_worker, client_for):

@@ -1,7 +1,9 @@
 """A test-only stage that takes a while: it lets tests kill, cancel and watch a running stage.
 
 Loaded through CLOUD2CNC_STAGE_PLUGINS=tests.plugins.dwell. It reads
-CLOUD2CNC_TEST_DWELL_S (seconds to take) and appends one line to
+CLOUD2CNC_TEST_DWELL_S (seconds to take; only for clouds of at least
+CLOUD2CNC_TEST_DWELL_MIN_POINTS points, default 0: smaller ones pass at once, so
+a test can queue a quick job behind a slow one) and appends one line to
 CLOUD2CNC_TEST_DWELL_LOG each time it runs to completion.
 """
 
@@ -18,8 +20,9 @@ from worker.context import StageContext
 
 
 def run_dwell(ctx: StageContext) -> dict[str, Path]:
-    seconds = float(os.environ.get("CLOUD2CNC_TEST_DWELL_S", "1"))
     report = json.loads(ctx.inputs["ingest.json"].read_text())
+    slow = report["counts"]["kept"] >= int(os.environ.get("CLOUD2CNC_TEST_DWELL_MIN_POINTS", "0"))
+    seconds = float(os.environ.get("CLOUD2CNC_TEST_DWELL_S", "1")) if slow else 0.0
     t0 = time.monotonic()
     while (elapsed := time.monotonic() - t0) < seconds:
         ctx.check_cancel()
