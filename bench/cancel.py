@@ -21,7 +21,6 @@ Target (issue 38): every stage stops within 5 s of a cancel.
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import sys
 import tempfile
@@ -29,7 +28,6 @@ import time
 from pathlib import Path
 
 import psutil
-
 from machine_info import describe_machine  # bench/ is on the path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,16 +91,16 @@ def measure(job: Path, params, settings) -> list[dict]:
         rec = Recorder()
         status, seconds = run_stage(spec, job, params, settings, rec)
         if status != "succeeded":
-            rows.append(dict(stage=spec.name, status=status, seconds=seconds))
+            rows.append({"stage": spec.name, "status": status, "seconds": seconds})
             log(f"{spec.name}: {status}, not measured")
             continue
         gap, before, after = rec.longest_gap(seconds)
         cancel = Recorder(cancel_at=seconds / 2)
         cstatus, cseconds = run_stage(spec, job, params, settings, cancel)
         latency = cseconds - seconds / 2 + WORKER_POLL_S if cstatus == "canceled" else None
-        rows.append(dict(stage=spec.name, status=status, seconds=seconds, checks=len(rec.calls) - 1, gap=gap,
-                         before=before, after=after, cancel_status=cstatus, latency=latency,
-                         children=leftover_children()))
+        rows.append({"stage": spec.name, "status": status, "seconds": seconds, "checks": len(rec.calls) - 1,
+                     "gap": gap, "before": before, "after": after, "cancel_status": cstatus, "latency": latency,
+                     "children": leftover_children()})
         log(f"{spec.name}: {seconds:.1f} s, {len(rec.calls) - 1} checks, longest gap {gap:.2f} s "
             f"({before} -> {after}); cancel at {seconds / 2:.1f} s: {cstatus}, latency "
             f"{'-' if latency is None else f'{latency:.2f} s'}")

@@ -24,7 +24,7 @@ import numpy as np
 
 from cam.mesh._closestkernel import closest_queries, make_tree
 
-__all__ = ["MeshIndex", "mesh_index", "closest_points", "closest_on_triangles", "triangle_normals"]
+__all__ = ["MeshIndex", "closest_on_triangles", "closest_points", "mesh_index", "triangle_normals"]
 
 # Distances this close are one distance (round-off of the same point reached through different pieces).
 TIE_MM = 1e-9

@@ -25,7 +25,7 @@ from cam.gcode.sweep import Sweep
 from cam.mesh.dropcutter import drop_ball, drop_index
 from cam.mesh.samples import SurfaceSamples, sample_surface
 
-__all__ = ["PartMeasurement", "ProgramIn", "REACH_TOL_MM", "measure_part", "vertex_values"]
+__all__ = ["REACH_TOL_MM", "PartMeasurement", "ProgramIn", "measure_part", "vertex_values"]
 
 #: The ball held this far off a sample counts as touching it (a ball touching a wall touches the wall's
 #: top edge too; whether that blocks it would otherwise be round-off).
@@ -87,7 +87,8 @@ def _reach(vertices: np.ndarray, faces: np.ndarray, samples: SurfaceSamples, set
         V = setup.to_machine(vertices)
         centre = p + (r + REACH_TOL_MM) * n
         index = drop_index(V, faces, radius_mm=r)
-        lowest, = _in_chunks(lambda s: (drop_ball(index, centre[s, :2]),), len(centre), check_cancel)
+        lowest, = _in_chunks(lambda s, index=index, centre=centre: (drop_ball(index, centre[s, :2]),), len(centre),
+                             check_cancel)
         out |= (lowest <= centre[:, 2] + REACH_TOL_MM) & (centre[:, 2] - r >= float(V[:, 2].min()) - REACH_TOL_MM)
     return out
 
