@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from cam.io.atomic import atomic_write
+from cam.spline.surface import make_bspline_surface
 
 __all__ = ["step_bytes", "write_step"]
 
@@ -112,9 +113,8 @@ def step_bytes(surfaces: Sequence, *, labels: Sequence[int] | None = None, creat
     Raises
     ------
     ValueError
-        For a label count that differs from the surface count, control points not shaped (nu, nv, 3),
-        a degree below 1 or knot counts that do not fit the net, knots that decrease or are not clamped,
-        or a non-finite knot or coordinate.
+        For a label count that differs from the surface count, or a surface that
+        `cam.spline.surface.make_bspline_surface` refuses (its message, after the patch's name).
     """
     labels = list(range(len(surfaces))) if labels is None else [int(x) for x in labels]
     if len(labels) != len(surfaces):
@@ -182,24 +182,13 @@ def _add_product(data: _Data, shape: int, product: str) -> None:
 
 def _add_face_shell(data: _Data, surf, name: str) -> int:
     """One surface as an ADVANCED_FACE bounded by its four border edges, in an OPEN_SHELL; the shell's id."""
-    p, q = (int(d) for d in surf.degree)
-    ku = np.asarray(surf.knots_u, dtype=np.float64)
-    kv = np.asarray(surf.knots_v, dtype=np.float64)
-    cp = np.asarray(surf.control_points, dtype=np.float64)
-    if cp.ndim != 3 or cp.shape[2] != 3:
-        raise ValueError(f"{name}: control points must have shape (nu, nv, 3), got {cp.shape}")
-    if not np.all(np.isfinite(cp)):
-        raise ValueError(f"{name}: control points contain NaN or Inf")
+    try:
+        # Clamped knots (checked there) make the border edges the net's outer rows.
+        checked = make_bspline_surface(surf.control_points, surf.knots_u, surf.knots_v, degree=surf.degree)
+    except ValueError as exc:
+        raise ValueError(f"{name}: {exc}") from exc
+    (p, q), ku, kv, cp = checked.degree, checked.knots_u, checked.knots_v, checked.control_points
     nu, nv = cp.shape[:2]
-    if p < 1 or q < 1 or ku.size != nu + p + 1 or kv.size != nv + q + 1:
-        raise ValueError(f"{name}: knot counts {ku.size}, {kv.size} and degree {(p, q)} do not fit "
-                         f"{nu} x {nv} control points")
-    for axis, knots, degree in (("u", ku, p), ("v", kv, q)):
-        if not np.all(np.isfinite(knots)) or np.any(np.diff(knots) < 0) or knots[-1] <= knots[0]:
-            raise ValueError(f"{name}: knots in {axis} must be finite, non-decreasing and span an interval")
-        if np.any(knots[:degree + 1] != knots[0]) or np.any(knots[-degree - 1:] != knots[-1]):
-            # The border edges are the net's outer rows only when the knots are clamped.
-            raise ValueError(f"{name}: knots in {axis} must be clamped (first and last {degree + 1} equal)")
     coords = [_finite_real(x) for x in cp.reshape(-1).tolist()]  # finite: checked above
     points = np.array([data.add(f"CARTESIAN_POINT('',({','.join(coords[3 * k:3 * k + 3])}))")
                        for k in range(nu * nv)]).reshape(nu, nv)

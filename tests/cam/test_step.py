@@ -117,7 +117,7 @@ def test_bad_input_is_refused_and_nothing_is_written(tmp_path):
     s = _plane()
     unclamped = type("S", (), {"degree": (1, 1), "knots_u": np.array([0.0, 0.5, 1.0, 1.5]),
                                "knots_v": s.knots_v, "control_points": s.control_points})
-    with pytest.raises(ValueError, match="patch 0: knots in u must be clamped"):
+    with pytest.raises(ValueError, match="patch 0: knots_u must be clamped"):
         write_step(tmp_path / "s.step", [unclamped])
     bad = type("S", (), {"degree": (1, 1), "knots_u": s.knots_u, "knots_v": s.knots_v,
                          "control_points": np.where(np.eye(2)[:, :, None] > 0, np.nan, s.control_points)})
