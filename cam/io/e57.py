@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cam.io._files import read_head
 from cam.io.errors import ReadError
 from cam.io.records import InputData
 
@@ -82,14 +83,7 @@ def _first_line(exc: Exception) -> str:
 
 
 def _check_header(target: Path) -> None:
-    try:
-        size = target.stat().st_size
-        with open(target, "rb") as handle:
-            head = handle.read(_HEADER.size)
-    except FileNotFoundError:
-        raise ReadError(f"{target} does not exist") from None
-    except IsADirectoryError:
-        raise ReadError(f"{target} is a directory, not a file") from None
+    head, size = read_head(target, _HEADER.size)
     if not head.startswith(_SIGNATURE):
         raise ReadError(f"{target.name} does not start with E57's signature 'ASTM-E57'; it is not an E57 file")
     if len(head) < _HEADER.size:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cam.io._files import read_head
 from cam.io._lascrs import read_crs_units
 from cam.io.errors import ReadError
 from cam.io.records import InputData
@@ -97,13 +98,7 @@ def read_las(path: str | os.PathLike[str], *, max_points: int | None = None) -> 
 
 
 def _read_header(target: Path) -> dict:
-    try:
-        with open(target, "rb") as handle:
-            head = handle.read(_HEADER_14)
-    except FileNotFoundError:
-        raise ReadError(f"{target} does not exist") from None
-    except IsADirectoryError:
-        raise ReadError(f"{target} is a directory, not a file") from None
+    head, _ = read_head(target, _HEADER_14)
     if not head.startswith(_SIGNATURE):
         raise ReadError(f"{target.name} does not start with LAS's signature 'LASF'; it is not a LAS/LAZ file")
     if len(head) < _MIN_HEADER:

@@ -6,6 +6,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+from cam.io._files import read_head
 from cam.io.e57 import read_e57
 from cam.io.errors import ReadError
 from cam.io.formats import SNIFF_BYTES, describe_unsupported, sniff_format
@@ -63,14 +64,7 @@ def read_input(path: str | os.PathLike[str], *, max_points: int | None = None) -
         like when it can), a file that holds no points, or any reader's complaint about the content.
     """
     target = Path(path)
-    try:
-        size = target.stat().st_size
-        with open(target, "rb") as handle:
-            head = handle.read(SNIFF_BYTES)
-    except FileNotFoundError:
-        raise ReadError(f"{target} does not exist") from None
-    except IsADirectoryError:
-        raise ReadError(f"{target} is a directory, not a file") from None
+    head, size = read_head(target, SNIFF_BYTES)
     if size == 0 or not head.strip():
         raise ReadError("the file is empty")
     kind = sniff_format(head, total_size=size)

@@ -36,6 +36,7 @@ from cam.reconstruct.fidelity import (
     TOLERANCE_SPACINGS,
     measure_fidelity,
 )
+from tests.cam.test_reconstruct import cube_cloud
 
 manifold3d = pytest.importorskip("manifold3d")
 
@@ -185,20 +186,11 @@ def test_fidelity_allows_isolated_outliers_but_not_a_cluster():
 FAST = {"iterations": 150, "batch_size": 2048, "grid_cells": 48, "resolution": 96, "max_faces": None, "seed": 0}
 
 
-def _cube_cloud(n: int, side: float, rng: np.random.Generator):
-    face = rng.integers(0, 6, n)
-    axis, sign = face // 2, np.where(face % 2 == 0, 1.0, -1.0)
-    pts = rng.uniform(-side / 2, side / 2, size=(n, 3))
-    pts[np.arange(n), axis] = sign * side / 2
-    nrm = np.zeros((n, 3))
-    nrm[np.arange(n), axis] = sign
-    return pts, nrm, (axis == 2) & (sign > 0)
-
-
 def test_normals_inside_out_on_one_face_are_refused_with_a_message():
     """A planted failure: an export that flipped the top face's normals makes the field wrong inside the
     cube; the mesh then holds surface 16 mm from every point, and the stage must say so."""
-    pts, nrm, top = _cube_cloud(6000, 40.0, np.random.default_rng(3))
+    pts, nrm = cube_cloud(6000, 40.0, np.random.default_rng(3))
+    top = nrm[:, 2] > 0  # the +z face
     nrm[top] *= -1.0
     with pytest.raises(FidelityError, match="strays up to .* from every scanned point") as caught:
         reconstruct_surface(pts, nrm, ReconstructParams(**FAST), threads=2)
@@ -215,7 +207,7 @@ def test_stage_refuses_a_cloud_whose_stray_cluster_the_surface_leaves_out(tmp_pa
     from worker.stages.reconstruct import run_reconstruct
 
     rng = np.random.default_rng(3)
-    pts, _, _ = _cube_cloud(6000, 40.0, rng)
+    pts, _ = cube_cloud(6000, 40.0, rng)
     ball = rng.normal(size=(40, 3))
     stray = ball / np.linalg.norm(ball, axis=1, keepdims=True) * 1.5 + [0.0, 0.0, 45.0]
     cloud = write_ply_points(tmp_path / "cloud.ply", np.vstack([pts, stray]), None)
