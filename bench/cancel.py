@@ -50,7 +50,6 @@ class Recorder:
         self.t0 = time.perf_counter()
         self.calls: list[tuple[float, str]] = [(0.0, "stage start")]
         self.cancel_at = cancel_at
-        self.raised_at: float | None = None
 
     def __call__(self) -> None:
         from worker.context import StageCanceled
@@ -60,7 +59,6 @@ class Recorder:
         self.calls.append((now, f"{Path(frame.f_code.co_filename).relative_to(ROOT)}:{frame.f_lineno}"
                                  f" ({frame.f_code.co_name})"))
         if self.cancel_at is not None and now >= self.cancel_at:
-            self.raised_at = self.raised_at or now
             raise StageCanceled("canceled by the bench")
 
     def longest_gap(self, end: float) -> tuple[float, str, str]:

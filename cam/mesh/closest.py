@@ -42,10 +42,6 @@ class MeshIndex:
         Triangles as vertex indices.
     centroids : (m, 3) float64
         Each triangle's centroid, mm (it breaks ties between equally near triangles).
-    radius : float
-        Largest centroid-to-corner distance of a piece, mm.
-    radii : (p,) float64
-        Each piece's centroid-to-corner distance, mm.
     piece_face : (p,) int64
         The triangle each piece is part of.
     piece_corners : (p, 3, 3) float64
@@ -59,8 +55,6 @@ class MeshIndex:
     vertices: np.ndarray  # float64 (n, 3), mm
     faces: np.ndarray  # int64 (m, 3)
     centroids: np.ndarray  # float64 (m, 3): each triangle's centroid, mm
-    radius: float  # largest centroid-to-corner distance of a piece, mm
-    radii: np.ndarray  # float64 (p,)
     piece_face: np.ndarray  # int64 (p,)
     piece_corners: np.ndarray  # float64 (p, 3, 3)
     piece_bary: np.ndarray  # float64 (p, 3, 3)
@@ -128,10 +122,8 @@ def mesh_index(vertices: np.ndarray, faces: np.ndarray) -> MeshIndex:
     limit = float(np.linalg.norm(np.ptp(V[used], axis=0))) / 50.0
     corners, bary, face = _cut_large(corners, np.broadcast_to(np.eye(3), (len(F), 3, 3)).copy(),
                                      np.arange(len(F), dtype=np.int64), max(limit, 1e-12))
-    radii = _radii(corners)
-    return MeshIndex(vertices=V, faces=F, centroids=V[F].mean(axis=1), radius=float(radii.max()), radii=radii,
-                     piece_face=face, piece_corners=corners, piece_bary=bary,
-                     tree=make_tree(corners))
+    return MeshIndex(vertices=V, faces=F, centroids=V[F].mean(axis=1), piece_face=face, piece_corners=corners,
+                     piece_bary=bary, tree=make_tree(corners))
 
 
 def triangle_normals(index: MeshIndex, triangles: np.ndarray) -> np.ndarray:
