@@ -76,7 +76,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="remesh",
-        version="1",
+        version="2",
         inputs=("mesh.ply",),
         outputs=("quads.obj", "remesh.json"),
         param_groups=("remesh",),

@@ -54,6 +54,13 @@ def test_remesh_box_is_checked_closed_and_on_the_surface():
     assert [c["quadriflow_target_faces"] for c in result.report["candidates"]] == [300, 300, 300]
     assert result.report["crease_length_mm"] == pytest.approx(360.0) and result.report["missed_crease_mm"] == 0.0
     assert result.report["hausdorff_mm"] == min(c["hausdorff_mm"] for c in result.report["candidates"])
+    # The kept layout's crease recall and straddling quads, at 0.2 % of the diagonal, are in the report.
+    from cam.remesh.creases import measure_crease_conformity
+
+    conformity = measure_crease_conformity(v, f, mesh.vertices, mesh.faces)
+    assert {k: result.report[k] for k in conformity.as_dict()} == conformity.as_dict()
+    assert result.report["crease_recall_length_mm"] == pytest.approx(360.0)
+    assert result.report["crease_recall_tolerance_mm"] == pytest.approx(0.002 * np.linalg.norm([40, 30, 20]))
 
 
 def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
