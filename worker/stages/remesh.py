@@ -17,6 +17,8 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
     if mesh.faces is None or len(mesh.faces) == 0:
         raise StageError("mesh.ply has no faces; the remesh stage needs a triangle mesh")
     try:
+        # Crease recall and straddling quads in remesh.json are measured at segment's default θ, not at
+        # segment.sharp_angle_deg: this stage's cache key holds the remesh group only.
         result = remesh_quads(mesh.points, mesh.faces, ctx.params.remesh, progress=ctx.progress_between(0.05, 0.9),
                               check_cancel=ctx.check_cancel)
     except GeometryError as exc:
