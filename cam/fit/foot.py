@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cam.spline._compiled import newton_feet
 from cam.spline.basis import evaluate_surface, span_params
 from cam.spline.pieces import c0_pieces, foot_in_pieces, make_piece_boxes, span_boxes
 
@@ -71,72 +72,14 @@ def project_points(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.
 
 
 def _newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
-    """Newton steps for the feet of P (n, 3) from (u, v) (n,), each kept inside its box lo..hi (n, 2).
+    """Newton steps for the feet of P (n, 3) from (u, v) (n,), each kept inside its box lo..hi (n, 2);
+    returns (u, v, distance), each (n,).
 
-    A row stops once its step moves it less than 1e-10 (or not at all): most converge in two or
-    three steps, and the rest keep iterating alone."""
-    lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
-    u, v = np.clip(u, lo_u, hi_u), np.clip(v, lo_v, hi_v)  # new arrays: updated in place below
-    dist = np.full(u.size, np.nan)
-
-    def distance(uu, vv, idx):
-        S = evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
-        return np.linalg.norm(S - P[idx], axis=1)
-
-    active = np.arange(u.size)
-    for _ in range(iterations):
-        if not active.size:
-            break
-        ua, va = u[active], v[active]
-        d = evaluate_surface(ku, kv, control_points, ua, va, degree=degree, order=2)
-        r = d[(0, 0)] - P[active]
-        su, sv = d[(1, 0)], d[(0, 1)]
-        g = np.stack([np.einsum("ij,ij->i", r, su), np.einsum("ij,ij->i", r, sv)], 1)
-        # A parameter on its bound whose descent leads out of the box is held there, and the step is
-        # taken in the other alone: the full step, clamped, can leave such a row where it is while
-        # the foot lies along the border (a skewed parameterisation), short of it.
-        held_u = ((ua <= lo_u[active]) & (g[:, 0] > 0)) | ((ua >= hi_u[active]) & (g[:, 0] < 0))
-        held_v = ((va <= lo_v[active]) & (g[:, 1] > 0)) | ((va >= hi_v[active]) & (g[:, 1] < 0))
-        g[held_u, 0] = 0.0
-        g[held_v, 1] = 0.0
-        free = ~(held_u | held_v)
-        juu, juv, jvv = (np.einsum("ij,ij->i", a, b) for a, b in ((su, su), (su, sv), (sv, sv)))
-        huu = np.where(held_u, 1.0, juu + np.einsum("ij,ij->i", r, d[(2, 0)]))
-        huv = np.where(free, juv + np.einsum("ij,ij->i", r, d[(1, 1)]), 0.0)
-        hvv = np.where(held_v, 1.0, jvv + np.einsum("ij,ij->i", r, d[(0, 2)]))
-        det = huu * hvv - huv**2
-        bad = (det <= 1e-12 * (huu * hvv + 1e-300)) | (huu <= 0) | (hvv <= 0)
-        # Where the full Hessian is not positive definite, fall back to Gauss–Newton (J^T J).
-        huu = np.where(bad & ~held_u, juu, huu)
-        huv = np.where(bad & free, juv, huv)
-        hvv = np.where(bad & ~held_v, jvv, hvv)
-        det = huu * hvv - huv**2
-        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-        step_u = -(hvv * g[:, 0] - huv * g[:, 1]) / det
-        step_v = -(huu * g[:, 1] - huv * g[:, 0]) / det
-        current = np.linalg.norm(r, axis=1)
-        new_u, new_v, new_d = ua.copy(), va.copy(), current.copy()
-        todo = np.flatnonzero(np.abs(step_u) + np.abs(step_v) > 1e-13)
-        scale = 1.0
-        for _half in range(3):  # full step, then halves, only where the previous try did not help
-            if not todo.size:
-                break
-            rows = active[todo]
-            tu = np.clip(ua[todo] + scale * step_u[todo], lo_u[rows], hi_u[rows])
-            tv = np.clip(va[todo] + scale * step_v[todo], lo_v[rows], hi_v[rows])
-            td = distance(tu, tv, rows)
-            better = td < current[todo]
-            idx = todo[better]
-            new_u[idx], new_v[idx], new_d[idx] = tu[better], tv[better], td[better]
-            todo = todo[~better]
-            scale *= 0.5
-        moved = np.maximum(np.abs(new_u - ua), np.abs(new_v - va))
-        u[active], v[active], dist[active] = new_u, new_v, new_d
-        active = active[moved >= 1e-10]
-    missing = np.flatnonzero(np.isnan(dist))  # only with iterations = 0
-    if missing.size:
-        dist[missing] = distance(u[missing], v[missing], missing)
-    return u, v, dist
+    Each step solves with the Hessian of |S - p|² (Gauss–Newton where it is not positive definite); a
+    parameter on its bound whose descent leads out of the box is held there and the step taken in the
+    other alone; a step that does not shorten the distance is halved (twice), then dropped; a point stops
+    once its step moves it less than 1e-10. Compiled (`cam.spline._compiled`), point by point."""
+    return newton_feet(ku, kv, control_points, P, u, v, lo, hi, degree, iterations)
 
 
 @dataclass(frozen=True, eq=False)

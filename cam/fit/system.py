@@ -20,14 +20,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
+from cam.fit._gramkernel import accumulate_grams, band_slot
 from cam.fit.param import Anchors
 from cam.spline.basis import (
     evaluate_surface,
     span_params,
     surface_rows,
     thin_plate_matrix,
-    weighted_grams,
-    weighted_rhs,
 )
 from cam.spline.pieces import c0_knots
 
@@ -58,8 +57,13 @@ def sdm_weights(signed_distance: np.ndarray, curvature: np.ndarray, *, cap: floa
     return np.clip(np.nan_to_num(w, nan=0.0, posinf=cap, neginf=0.0), 0.0, cap)
 
 
+# The six coordinate pairs (i, j), i ≤ j, of the symmetric 3 x 3 block structure, and the pair of each (i, j).
+_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+_PAIR_OF = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
+
+
 class NormalEquations:
-    """Normal equations of one knot layout: thin-plate matrix and free/fixed split built once.
+    """Normal equations of one knot layout: thin-plate matrix, free/fixed split and the sparse pattern built once.
 
     Parameters
     ----------
@@ -71,16 +75,68 @@ class NormalEquations:
         mm per parameter unit along u and v (scales the thin-plate energy to the part).
     degree : tuple of int
         (p, q), the surface's degrees.
+
+    Notes
+    -----
+    The Gram blocks are summed in band storage (`cam.fit._gramkernel`); the matrix of the free control
+    points is gathered from it straight into compressed-column form, its pattern (every pair of free control
+    points whose basis functions overlap, for each coordinate pair) fixed here once per layout.
     """
 
     def __init__(self, knots_u: np.ndarray, knots_v: np.ndarray, fixed: np.ndarray, *,
                  lengths_mm: tuple[float, float], degree: tuple[int, int]) -> None:
-        self.ncp = fixed.size
-        H = thin_plate_matrix(knots_u, knots_v, degree=degree, length_u=lengths_mm[0], length_v=lengths_mm[1])
-        self.H3 = sp.block_diag([H, H, H]).tocsr()
+        p, q = degree
+        nu, nv = fixed.shape
+        self.degree, self.ncp, self.width = (int(p), int(q)), fixed.size, (2 * p + 1) * (2 * q + 1)
+        H = thin_plate_matrix(knots_u, knots_v, degree=degree, length_u=lengths_mm[0],
+                              length_v=lengths_mm[1]).tocoo()
+        di, dj = H.col // nv - H.row // nv, H.col % nv - H.row % nv
+        outside = (np.abs(di) > p) | (np.abs(dj) > q)
+        if np.any(H.data[outside] != 0):  # basis functions that do not overlap bend nothing together
+            raise RuntimeError("thin-plate matrix has a coupling outside the basis functions' overlap")
+        h_band = np.zeros((self.ncp, self.width))
+        h_band[H.row[~outside], band_slot(di[~outside], dj[~outside], degree)] = H.data[~outside]
         free = np.flatnonzero(~fixed.ravel())
+        nf = free.size
         self.free3 = np.concatenate([free + k * self.ncp for k in range(3)])
         self.fixed3 = np.concatenate([np.flatnonzero(fixed.ravel()) + k * self.ncp for k in range(3)])
+        index = np.full(self.ncp, -1)
+        index[free] = np.arange(nf)
+        # Every band entry (c, slot) whose partner c2 exists.
+        c = np.repeat(np.arange(self.ncp), self.width)
+        slot = np.tile(np.arange(self.width), self.ncp)
+        i2 = c // nv + slot // (2 * q + 1) - p
+        j2 = c % nv + slot % (2 * q + 1) - q
+        inside = (i2 >= 0) & (i2 < nu) & (j2 >= 0) & (j2 < nv)
+        c, slot, c2 = c[inside], slot[inside], (i2 * nv + j2)[inside]
+        # The band holds the upper triangle (c2 ≥ c); an entry below reads its mirror (c2, c).
+        below = c2 < c
+        at = np.where(below, c2 * self.width + (self.width - 1 - slot), c * self.width + slot)
+        h_at = c * self.width + slot
+        coupled = index[c] >= 0
+        ff, fx = coupled & (index[c2] >= 0), coupled & (index[c2] < 0)
+        rows, cols, src, h = [], [], [], []
+        rows_x, src_x, h_x, value_x = [], [], [], []
+        for i in range(3):
+            for j in range(3):
+                pair = _PAIR_OF[i, j]
+                hv = h_band.ravel()[h_at] if i == j else np.zeros(at.size)
+                rows.append(i * nf + index[c[ff]])
+                cols.append(j * nf + index[c2[ff]])
+                src.append(at[ff] * len(_PAIRS) + pair)
+                h.append(hv[ff])
+                rows_x.append(i * nf + index[c[fx]])
+                src_x.append(at[fx] * len(_PAIRS) + pair)
+                h_x.append(hv[fx])
+                value_x.append(j * self.ncp + c2[fx])
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        order = np.lexsort((rows, cols))
+        self.src, self.h = np.concatenate(src)[order], np.concatenate(h)[order]
+        self.indices = rows[order].astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=3 * nf))]).astype(np.int32)
+        self.diagonal = np.flatnonzero(self.indices == np.repeat(np.arange(3 * nf), np.diff(self.indptr)))
+        self.rows_x, self.src_x = np.concatenate(rows_x), np.concatenate(src_x)
+        self.h_x, self.value_x = np.concatenate(h_x), np.concatenate(value_x)
 
     def solve(self, rows: list, lam: float, cp_current: np.ndarray, damping: float = 0.0) -> np.ndarray:
         """Minimise Σ w (e · S(u) - target)² over the row sets plus lam · thin-plate, free points only.
@@ -102,41 +158,39 @@ class NormalEquations:
             The new control net, mm; fixed points as in `cp_current`.
         """
         size = self.ncp
-        blocks = [[None] * 3 for _ in range(3)]
+        band = np.zeros((size, self.width, len(_PAIRS)))
         rhs = np.zeros(3 * size)
-        pairs = [(i, j) for i in range(3) for j in range(i, 3)]
         for (cols, vals), terms in rows:
             for i in range(3):
                 ri = sum(w * e[:, i] * t for e, w, t in terms)
-                rhs[i * size:(i + 1) * size] += weighted_rhs(cols, vals, ri, size)
-            grams = weighted_grams(cols, vals, [sum(w * e[:, i] * e[:, j] for e, w, _ in terms) for i, j in pairs],
-                                   size)
-            for (i, j), g in zip(pairs, grams):
-                blocks[i][j] = g if blocks[i][j] is None else blocks[i][j] + g
-        for i in range(3):
-            for j in range(i):
-                blocks[i][j] = blocks[j][i].T
-        M = (sp.bmat(blocks, format="csr") + lam * self.H3).tocsr()
+                rhs[i * size:(i + 1) * size] += np.bincount(cols.ravel(), weights=(vals * ri[:, None]).ravel(),
+                                                            minlength=size)
+            weights = np.stack([sum(w * e[:, i] * e[:, j] for e, w, _ in terms) for i, j in _PAIRS], axis=1)
+            accumulate_grams(cols, vals, weights, self.degree, band)
+        flat = band.ravel()
+        data = flat[self.src] + lam * self.h
         c_all = cp_current.reshape(-1, 3).T.ravel()  # [x..., y..., z...]
-        M_ff = M[self.free3][:, self.free3]
         r = rhs[self.free3]
         if self.fixed3.size:
-            r = r - M[self.free3][:, self.fixed3] @ c_all[self.fixed3]
+            coupling = (flat[self.src_x] + lam * self.h_x) * c_all[self.value_x]
+            r = r - np.bincount(self.rows_x, weights=coupling, minlength=r.size)
         # A vanishing diagonal is a control point nothing reaches (no sample, no bending): keep it.
-        diag = M_ff.diagonal()
+        diag = data[self.diagonal]
         scale = max(float(diag.max(initial=0.0)), 1e-300)
         weak = diag < 1e-14 * scale
         if weak.any():
-            M_ff = M_ff + sp.diags(np.where(weak, scale * 1e-10, 0.0))
+            data[self.diagonal] += np.where(weak, scale * 1e-10, 0.0)
             r = r + np.where(weak, scale * 1e-10, 0.0) * c_all[self.free3]
         if damping > 0:
             # Levenberg-Marquardt: moving a control point from cp_current costs damping times the
             # problem's curvature along it, floored so that points little data reaches are held too.
             d = damping * np.maximum(diag, 1e-3 * float(diag.mean()))
-            M_ff = M_ff + sp.diags(d)
+            data[self.diagonal] += d
             r = r + d * c_all[self.free3]
         c_all = c_all.copy()
-        c_all[self.free3] = _solve_spd(M_ff.tocsc(), r)
+        M = sp.csc_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(r.size, r.size))
+        M.eliminate_zeros()  # in place; pairs of the pattern that nothing coupled would only add fill
+        c_all[self.free3] = _solve_spd(M, r)
         return c_all.reshape(3, -1).T.reshape(cp_current.shape)
 
 

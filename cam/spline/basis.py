@@ -4,7 +4,7 @@
 at many parameters at once; `surface_matrix` turns them into the sparse design
 matrix of a tensor-product surface, `evaluate_surface` evaluates a control net
 with all derivatives up to second order in one pass (foot points and curvature
-need them together), and `gram_matrix` / `thin_plate_matrix` give the exact
+need them together; compiled, by the same recursions: `cam.spline._compiled`), and `gram_matrix` / `thin_plate_matrix` give the exact
 quadratic forms of the bending energy.
 
 The fit evaluates the nets it solves for with these basis functions, the same as
@@ -20,8 +20,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["find_spans", "basis_functions", "curve_matrix", "surface_rows", "surface_matrix", "weighted_grams",
-           "weighted_rhs", "evaluate_curve", "evaluate_surface", "span_params", "gram_matrix", "thin_plate_matrix"]
+from cam.spline._compiled import evaluate_net
+
+__all__ = ["find_spans", "basis_functions", "curve_matrix", "surface_rows", "surface_matrix", "evaluate_curve",
+           "evaluate_surface", "span_params", "gram_matrix", "thin_plate_matrix"]
 
 
 def find_spans(knots: np.ndarray, degree: int, t: np.ndarray) -> np.ndarray:
@@ -241,64 +243,6 @@ def surface_matrix(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: n
     return sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(len(cols), size))
 
 
-def weighted_grams(cols: np.ndarray, vals: np.ndarray, weights: list[np.ndarray], size: int) -> list[sp.csr_matrix]:
-    """Compute B^T diag(w) B for each w in `weights`, B given by its rows (see `surface_rows`).
-
-    Rows in one knot cell share their columns, so products are summed per cell (one sparse
-    product with the row-to-cell incidence) and one small block per cell is scattered.
-
-    Parameters
-    ----------
-    cols : (n, m) int64
-        Column indices of each row's non-zeros, as from `surface_rows`.
-    vals : (n, m) float64
-        The matching values (parameter units^-k for a k-th derivative design matrix).
-    weights : list of (n,) float64
-        Row weights, one Gram matrix per entry.
-    size : int
-        Number of columns of B (nu * nv).
-
-    Returns
-    -------
-    grams : list of (size, size) scipy.sparse.csr_matrix of float64
-        B^T diag(w) B for each w, in the order of `weights`.
-    """
-    n, m = cols.shape
-    cells, first, inverse = np.unique(cols[:, 0], return_index=True, return_inverse=True)
-    incidence = sp.csr_matrix((np.ones(n), (inverse.ravel(), np.arange(n))), shape=(len(cells), n))
-    outer = (vals[:, :, None] * vals[:, None, :]).reshape(n, m * m)
-    cc = cols[first]
-    r = np.repeat(cc, m, axis=1).ravel()
-    c = np.tile(cc, (1, m)).ravel()
-    out = []
-    for w in weights:
-        blocks = (incidence @ sp.diags(w)) @ outer
-        out.append(sp.coo_matrix((np.asarray(blocks).ravel(), (r, c)), shape=(size, size)).tocsr())
-    return out
-
-
-def weighted_rhs(cols: np.ndarray, vals: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
-    """Compute B^T values for the design matrix B given by its rows (see `surface_rows`).
-
-    Parameters
-    ----------
-    cols : (n, m) int64
-        Column indices of each row's non-zeros.
-    vals : (n, m) float64
-        The matching values.
-    values : (n,) float64
-        One coordinate of the data per row, in mm.
-    size : int
-        Number of columns of B (nu * nv).
-
-    Returns
-    -------
-    rhs : (size,) float64
-        B^T values, in mm (times the units of `vals`).
-    """
-    return np.bincount(cols.ravel(), weights=(vals * values[:, None]).ravel(), minlength=size)
-
-
 def evaluate_curve(knots: np.ndarray, control_points: np.ndarray, t: np.ndarray, *, degree: int = 3,
                    derivatives: int = 0) -> list[np.ndarray]:
     """Evaluate a B-spline curve and its derivatives: [C(t), C'(t), ...] up to `derivatives`.
@@ -363,31 +307,12 @@ def evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: n
         {(du, dv): ∂^(du+dv)S/∂u^du∂v^dv} in mm per parameter unit^(du + dv) ((0, 0): the points, in
         mm); every du + dv ≤ `order`. Orders beyond the degrees are zero.
     """
-    p, q = degree
+    if order not in (0, 1, 2):
+        raise ValueError(f"order must be 0, 1 or 2, got {order}")
     cp = np.asarray(control_points, dtype=np.float64)
-    u = np.asarray(u, dtype=np.float64).ravel()
-    v = np.asarray(v, dtype=np.float64).ravel()
-    ku = np.asarray(knots_u, dtype=np.float64)
-    kv = np.asarray(knots_v, dtype=np.float64)
-    su = find_spans(ku, p, u)
-    sv = find_spans(kv, q, v)
-    tu, tv = _values(ku, p, u, su), _values(kv, q, v, sv)
-    bu = {d: _derivative(ku, tu, su, p, d) for d in range(min(order, p) + 1)}
-    bv = {d: _derivative(kv, tv, sv, q, d) for d in range(min(order, q) + 1)}
-    pairs = [(a, b) for a in range(order + 1) for b in range(order + 1 - a)]
-    iu = su[:, None] - p + np.arange(p + 1)[None, :]
-    iv = sv[:, None] - q + np.arange(q + 1)[None, :]
-    n = u.size
-    flat = (iu[:, :, None] * cp.shape[1] + iv[:, None, :]).reshape(n, (p + 1) * (q + 1))
-    net = cp.reshape(-1, cp.shape[-1]).T[:, flat]  # (3, n, (p + 1)(q + 1)); per-coordinate gathers are fastest
-    out = {}
-    for a, b in pairs:
-        if a in bu and b in bv:
-            w = (bu[a][:, :, None] * bv[b][:, None, :]).reshape(n, -1)
-            out[(a, b)] = np.stack([np.einsum("nm,nm->n", w, net[k]) for k in range(len(net))], axis=1)
-        else:
-            out[(a, b)] = np.zeros((n, cp.shape[-1]))
-    return out
+    if cp.ndim != 3:
+        raise ValueError(f"need a control net of shape (nu, nv, d), got {cp.shape}")
+    return evaluate_net(knots_u, knots_v, cp, u, v, degree, order)
 
 
 def span_params(knots: np.ndarray, per_span: int) -> np.ndarray:

@@ -1,0 +1,75 @@
+"""Compiled accumulation of the normal equations' Gram blocks B^T diag(w) B, in band storage.
+
+A surface's design-matrix row touches the (p + 1)(q + 1) control points of one knot cell, so two control
+points i*nv + j and i'*nv + j' meet in B^T B only when |i - i'| ≤ p and |j - j'| ≤ q: each Gram block fits in
+(nu nv, (2p + 1)(2q + 1)) band storage, entry [c, (di + p)(2q + 1) + dj + q] holding its (c, c + di nv + dj).
+Summed row by row here, and the upper triangle only (each block is symmetric), the six coordinate-pair
+blocks of a row set cost a few multiply-adds per product instead of six sparse matrix products and
+conversions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["accumulate_grams", "band_slot"]
+
+
+def band_slot(di: np.ndarray, dj: np.ndarray, degree: tuple[int, int]) -> np.ndarray:
+    """Band column of the entry between control points (i, j) and (i + di, j + dj).
+
+    Parameters
+    ----------
+    di, dj : ndarray of int
+        Offsets along u and v, |di| ≤ p, |dj| ≤ q.
+    degree : tuple of int
+        (p, q).
+
+    Returns
+    -------
+    ndarray of int64
+        (di + p)(2q + 1) + dj + q, in [0, (2p + 1)(2q + 1)).
+    """
+    p, q = degree
+    return ((np.asarray(di) + p) * (2 * q + 1) + np.asarray(dj) + q).astype(np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _accumulate(cols, vals, weights, p, q, band):
+    n, m = cols.shape
+    pairs = weights.shape[1]
+    width = 2 * q + 1
+    for r in range(n):
+        for a in range(m):
+            ia, ja = a // (q + 1), a % (q + 1)
+            c = cols[r, a]
+            va = vals[r, a]
+            for b in range(a, m):  # columns grow with the position: b ≥ a is the upper triangle
+                slot = (b // (q + 1) - ia + p) * width + (b % (q + 1) - ja + q)
+                product = va * vals[r, b]
+                for k in range(pairs):
+                    band[c, slot, k] += weights[r, k] * product
+
+
+def accumulate_grams(cols: np.ndarray, vals: np.ndarray, weights: np.ndarray, degree: tuple[int, int],
+                     band: np.ndarray) -> None:
+    """Add the upper triangle of B^T diag(weights[:, k]) B to band[..., k] for every k, B given by its rows.
+
+    Parameters
+    ----------
+    cols : ndarray, shape (n, (p + 1)(q + 1)), int64
+        Column indices of each row's non-zeros, as `cam.spline.basis.surface_rows` lays them out
+        (control point (i0 + i) nv + (j0 + j) at position i (q + 1) + j, so they grow along a row).
+    vals : ndarray, shape (n, (p + 1)(q + 1)), float64
+        The matching values.
+    weights : ndarray, shape (n, k), float64
+        Row weights of each of the k blocks.
+    degree : tuple of int
+        (p, q).
+    band : ndarray, shape (nu nv, (2p + 1)(2q + 1), k), float64
+        The blocks in band storage (see the module docstring), entries (c, c2) with c2 ≥ c only (the
+        blocks are symmetric); updated in place.
+    """
+    _accumulate(np.ascontiguousarray(cols, dtype=np.int64), np.ascontiguousarray(vals, dtype=np.float64),
+                np.ascontiguousarray(weights, dtype=np.float64), int(degree[0]), int(degree[1]), band)

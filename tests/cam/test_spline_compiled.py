@@ -1,0 +1,178 @@
+"""The compiled surface evaluation and foot-point Newton iteration against the numpy code they replaced
+(kept here as the oracle): bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cam.fit.foot import project_points
+from cam.spline import basis
+from cam.spline._compiled import newton_feet
+from cam.spline.basis import evaluate_surface
+from cam.spline.surface import clamped_uniform_knots
+
+
+def numpy_evaluate_surface(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,
+                     u: np.ndarray, v: np.ndarray, *, degree: tuple[int, int] = (3, 3), order: int = 2
+                     ) -> dict[tuple[int, int], np.ndarray]:
+    """The vectorised evaluation the kernel replaced (terms as `evaluate_surface` returns them)."""
+    p, q = degree
+    cp = np.asarray(control_points, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64).ravel()
+    v = np.asarray(v, dtype=np.float64).ravel()
+    ku = np.asarray(knots_u, dtype=np.float64)
+    kv = np.asarray(knots_v, dtype=np.float64)
+    su = basis.find_spans(ku, p, u)
+    sv = basis.find_spans(kv, q, v)
+    tu, tv = basis._values(ku, p, u, su), basis._values(kv, q, v, sv)
+    bu = {d: basis._derivative(ku, tu, su, p, d) for d in range(min(order, p) + 1)}
+    bv = {d: basis._derivative(kv, tv, sv, q, d) for d in range(min(order, q) + 1)}
+    pairs = [(a, b) for a in range(order + 1) for b in range(order + 1 - a)]
+    iu = su[:, None] - p + np.arange(p + 1)[None, :]
+    iv = sv[:, None] - q + np.arange(q + 1)[None, :]
+    n = u.size
+    flat = (iu[:, :, None] * cp.shape[1] + iv[:, None, :]).reshape(n, (p + 1) * (q + 1))
+    net = cp.reshape(-1, cp.shape[-1]).T[:, flat]  # (3, n, (p + 1)(q + 1)); per-coordinate gathers are fastest
+    out = {}
+    for a, b in pairs:
+        if a in bu and b in bv:
+            w = (bu[a][:, :, None] * bv[b][:, None, :]).reshape(n, -1)
+            out[(a, b)] = np.stack([np.einsum("nm,nm->n", w, net[k]) for k in range(len(net))], axis=1)
+        else:
+            out[(a, b)] = np.zeros((n, cp.shape[-1]))
+    return out
+
+
+def numpy_newton(ku, kv, control_points, P, u, v, lo, hi, degree, iterations):
+    """Newton steps for the feet of P (n, 3) from (u, v) (n,), each kept inside its box lo..hi (n, 2).
+
+    A row stops once its step moves it less than 1e-10 (or not at all): most converge in two or
+    three steps, and the rest keep iterating alone."""
+    lo_u, lo_v, hi_u, hi_v = lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]
+    u, v = np.clip(u, lo_u, hi_u), np.clip(v, lo_v, hi_v)  # new arrays: updated in place below
+    dist = np.full(u.size, np.nan)
+
+    def distance(uu, vv, idx):
+        S = numpy_evaluate_surface(ku, kv, control_points, uu, vv, degree=degree, order=0)[(0, 0)]
+        return np.linalg.norm(S - P[idx], axis=1)
+
+    active = np.arange(u.size)
+    for _ in range(iterations):
+        if not active.size:
+            break
+        ua, va = u[active], v[active]
+        d = numpy_evaluate_surface(ku, kv, control_points, ua, va, degree=degree, order=2)
+        r = d[(0, 0)] - P[active]
+        su, sv = d[(1, 0)], d[(0, 1)]
+        g = np.stack([np.einsum("ij,ij->i", r, su), np.einsum("ij,ij->i", r, sv)], 1)
+        # A parameter on its bound whose descent leads out of the box is held there, and the step is
+        # taken in the other alone: the full step, clamped, can leave such a row where it is while
+        # the foot lies along the border (a skewed parameterisation), short of it.
+        held_u = ((ua <= lo_u[active]) & (g[:, 0] > 0)) | ((ua >= hi_u[active]) & (g[:, 0] < 0))
+        held_v = ((va <= lo_v[active]) & (g[:, 1] > 0)) | ((va >= hi_v[active]) & (g[:, 1] < 0))
+        g[held_u, 0] = 0.0
+        g[held_v, 1] = 0.0
+        free = ~(held_u | held_v)
+        juu, juv, jvv = (np.einsum("ij,ij->i", a, b) for a, b in ((su, su), (su, sv), (sv, sv)))
+        huu = np.where(held_u, 1.0, juu + np.einsum("ij,ij->i", r, d[(2, 0)]))
+        huv = np.where(free, juv + np.einsum("ij,ij->i", r, d[(1, 1)]), 0.0)
+        hvv = np.where(held_v, 1.0, jvv + np.einsum("ij,ij->i", r, d[(0, 2)]))
+        det = huu * hvv - huv**2
+        bad = (det <= 1e-12 * (huu * hvv + 1e-300)) | (huu <= 0) | (hvv <= 0)
+        # Where the full Hessian is not positive definite, fall back to Gauss–Newton (J^T J).
+        huu = np.where(bad & ~held_u, juu, huu)
+        huv = np.where(bad & free, juv, huv)
+        hvv = np.where(bad & ~held_v, jvv, hvv)
+        det = huu * hvv - huv**2
+        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
+        step_u = -(hvv * g[:, 0] - huv * g[:, 1]) / det
+        step_v = -(huu * g[:, 1] - huv * g[:, 0]) / det
+        current = np.linalg.norm(r, axis=1)
+        new_u, new_v, new_d = ua.copy(), va.copy(), current.copy()
+        todo = np.flatnonzero(np.abs(step_u) + np.abs(step_v) > 1e-13)
+        scale = 1.0
+        for _half in range(3):  # full step, then halves, only where the previous try did not help
+            if not todo.size:
+                break
+            rows = active[todo]
+            tu = np.clip(ua[todo] + scale * step_u[todo], lo_u[rows], hi_u[rows])
+            tv = np.clip(va[todo] + scale * step_v[todo], lo_v[rows], hi_v[rows])
+            td = distance(tu, tv, rows)
+            better = td < current[todo]
+            idx = todo[better]
+            new_u[idx], new_v[idx], new_d[idx] = tu[better], tv[better], td[better]
+            todo = todo[~better]
+            scale *= 0.5
+        moved = np.maximum(np.abs(new_u - ua), np.abs(new_v - va))
+        u[active], v[active], dist[active] = new_u, new_v, new_d
+        active = active[moved >= 1e-10]
+    missing = np.flatnonzero(np.isnan(dist))  # only with iterations = 0
+    if missing.size:
+        dist[missing] = distance(u[missing], v[missing], missing)
+    return u, v, dist
+
+def _cases():
+    """(knots_u, knots_v, net, degree): a random bicubic net with a triple (C0) knot, a bent sheet with
+    C0 lines, a biquadratic net and a bilinear one (no second derivatives), all in parameter units."""
+    rng = np.random.default_rng(11)
+    ku = np.array([0, 0, 0, 0, 0.2, 0.5, 0.5, 0.5, 0.8, 1, 1, 1, 1.0])
+    yield ku, clamped_uniform_knots(6), rng.normal(size=(9, 6, 3)), (3, 3)
+    s, t = np.meshgrid([0, 1 / 3, 2 / 3, 1, 4 / 3, 5 / 3, 2], np.linspace(0, 1, 5), indexing="ij")
+    bent = np.stack([s, 4.0 * np.maximum(s - 1.0, 0.0) * (1 - t) + 2 * t, 0.3 * s * t + 0.2 * np.sin(3 * s)], -1)
+    yield np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2.0]), np.array([0, 0, 0, 0, 0.5, 1, 1, 1, 1.0]), bent, (3, 3)
+    yield clamped_uniform_knots(5, degree=2), clamped_uniform_knots(4, degree=2), rng.normal(size=(5, 4, 3)), (2, 2)
+    yield clamped_uniform_knots(4, degree=1), clamped_uniform_knots(3, degree=1), rng.normal(size=(4, 3, 3)), (1, 1)
+
+
+@pytest.mark.parametrize("case", range(4))
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_compiled_evaluation_is_bit_for_bit_that_of_numpy(case, order):
+    ku, kv, cp, degree = list(_cases())[case]
+    rng = np.random.default_rng(case)
+    u = np.concatenate([rng.uniform(ku[0] - 0.1, ku[-1] + 0.1, 500), np.unique(ku)])
+    v = np.concatenate([rng.uniform(kv[0] - 0.1, kv[-1] + 0.1, 500), np.unique(kv)[:1].repeat(np.unique(ku).size)])
+    want = numpy_evaluate_surface(ku, kv, cp, u, v, degree=degree, order=order)
+    got = evaluate_surface(ku, kv, cp, u, v, degree=degree, order=order)
+    assert sorted(got) == sorted(want)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key])
+
+
+@pytest.mark.parametrize("case", range(4))
+@pytest.mark.parametrize("iterations", [0, 1, 8, 12])
+def test_compiled_feet_are_bit_for_bit_those_of_the_numpy_iteration(case, iterations):
+    ku, kv, cp, degree = list(_cases())[case]
+    p, q = degree
+    rng = np.random.default_rng(case * 100 + iterations)
+    n = 400
+    lo_u, hi_u, lo_v, hi_v = ku[p], ku[-p - 1], kv[q], kv[-q - 1]
+    on = numpy_evaluate_surface(ku, kv, cp, rng.uniform(lo_u, hi_u, n), rng.uniform(lo_v, hi_v, n), degree=degree,
+                          order=0)[(0, 0)]
+    points = on + rng.normal(scale=0.3, size=(n, 3))
+    u, v = rng.uniform(lo_u - 0.1, hi_u + 0.1, n), rng.uniform(lo_v - 0.1, hi_v + 0.1, n)
+    u[:4], v[:4] = [lo_u, hi_u, lo_u, 0.5 * (lo_u + hi_u)], [lo_v, hi_v, hi_v, lo_v]  # corners, a border
+    # Boxes: the whole domain, and a sub-box per point (as the search piece by piece gives).
+    a, b = rng.uniform(lo_u, hi_u, (2, n)), rng.uniform(lo_v, hi_v, (2, n))
+    lo = np.where(rng.random((n, 1)) < 0.5, [lo_u, lo_v], np.stack([a.min(0), b.min(0)], -1))
+    hi = np.where(lo == [lo_u, lo_v], [hi_u, hi_v], np.stack([a.max(0), b.max(0)], -1))
+    want = numpy_newton(ku, kv, cp, points, u, v, lo, hi, degree, iterations)
+    got = newton_feet(ku, kv, cp, points, u, v, lo, hi, degree, iterations)
+    for w, g in zip(want, got):
+        np.testing.assert_array_equal(g, w)
+
+
+def test_project_points_finds_the_feet_on_a_plane_exactly():
+    # S(u, v) = (u, v, 0) on [0, 3] x [0, 2] (a bicubic net at the Greville abscissae): the foot of
+    # (x, y, z) inside the domain is (x, y) at distance |z|; outside, the nearest border point.
+    ku, kv = clamped_uniform_knots(6) * 3.0, clamped_uniform_knots(5) * 2.0
+    gu = np.array([(ku[i + 1] + ku[i + 2] + ku[i + 3]) / 3 for i in range(6)])
+    gv = np.array([(kv[i + 1] + kv[i + 2] + kv[i + 3]) / 3 for i in range(5)])
+    cp = np.stack([*np.meshgrid(gu, gv, indexing="ij"), np.zeros((6, 5))], -1)
+    rng = np.random.default_rng(3)
+    pts = np.column_stack([rng.uniform(-1, 4, 300), rng.uniform(-1, 3, 300), rng.normal(size=300)])
+    u, v, d = project_points(ku, kv, cp, pts, np.full(300, 1.5), np.full(300, 1.0))
+    x, y = np.clip(pts[:, 0], 0, 3), np.clip(pts[:, 1], 0, 2)
+    np.testing.assert_allclose(u, x, atol=1e-9)
+    np.testing.assert_allclose(v, y, atol=1e-9)
+    np.testing.assert_allclose(d, np.linalg.norm(pts - np.column_stack([x, y, 0 * x]), axis=1), atol=1e-9)
