@@ -80,6 +80,7 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("mesh.ply",),
         outputs=("quads.obj", "remesh.json"),
         param_groups=("remesh",),
+        settings=("stage_processes",),
         time_limit_s=1200.0,
         faster="a lower remesh.target_faces, fewer remesh.attempts or remesh.candidates",
     ),

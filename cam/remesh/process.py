@@ -1,10 +1,11 @@
-"""Run QuadriFlow once, in a child process with a time limit and cancellation.
+"""Run QuadriFlow in child processes with a time limit and cancellation: once, or several runs at once.
 
 QuadriFlow (through ``pyQuadriFlow``) can, on rare inputs, loop forever or
 crash inside C++, so it runs in :mod:`cam.remesh.child`: the request goes in on
 stdin and the result comes back on stdout, both as npz. The parent waits in
 short steps so that it can kill the child at the deadline or when the caller
-cancels.
+cancels. `QuadriflowRuns` keeps several such children going on one mesh, so that
+the runs a remesh will want next are already running when it wants them.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 
 from cam import CheckCancel
 
-__all__ = ["QuadriflowFailed", "run_quadriflow"]
+__all__ = ["QuadriflowFailed", "QuadriflowRuns", "run_quadriflow"]
 
 # How often, s, the wait on the child wakes to check the deadline and cancellation.
 _CHECK_EVERY_S = 0.25
@@ -81,12 +82,100 @@ def run_quadriflow(
     QuadriflowFailed
         On timeout, a crash, an error reported by QuadriFlow or unreadable output.
     """
-    request = _encode_request(vertices, triangles, target_faces=target_faces, seed=seed,
-                              preserve_sharp=preserve_sharp, preserve_boundary=preserve_boundary,
-                              min_cost_flow=min_cost_flow, timeout_s=timeout_s)
-    proc = _start_child()
-    out, err = _exchange(proc, request, timeout_s=timeout_s, check_cancel=check_cancel)
-    return _decode_result(proc.returncode, out, err)
+    runs = QuadriflowRuns(vertices, triangles, preserve_sharp=preserve_sharp, preserve_boundary=preserve_boundary,
+                          min_cost_flow=min_cost_flow, timeout_s=timeout_s, processes=1)
+    try:
+        out_vertices, out_faces, _, _ = runs.result((target_faces, seed), check_cancel=check_cancel)
+    finally:
+        runs.close()
+    return out_vertices, out_faces
+
+
+class QuadriflowRuns:
+    """QuadriFlow runs on one mesh, up to `processes` children at once, each keyed by (target_faces, seed).
+
+    `plan(keys)` says which runs are wanted next, in order: children running for any other key are killed,
+    and children are started for the first keys while fewer than `processes` run. `result(key)` waits for
+    that run (starting it if need be), checking every child's time limit and the caller's cancellation
+    four times a second, and returns its vertices and faces, its seconds and its start on
+    `time.monotonic`, or raises its `QuadriflowFailed`. `close()` kills what still runs. A run's result
+    does not depend on what runs beside it: QuadriFlow is deterministic for a mesh, a target and a seed.
+
+    Parameters
+    ----------
+    vertices, triangles
+        float (n, 3), mm, and int (m, 3): the mesh.
+    preserve_sharp, preserve_boundary, min_cost_flow, timeout_s
+        As for `run_quadriflow`; the limit holds for each run from its start.
+    processes
+        Most children at once (at least 1).
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, *, preserve_sharp: bool, preserve_boundary: bool,
+                 min_cost_flow: bool, timeout_s: float, processes: int) -> None:
+        self._mesh = (vertices, triangles)
+        self._switches = {"preserve_sharp": preserve_sharp, "preserve_boundary": preserve_boundary,
+                          "min_cost_flow": min_cost_flow}
+        self._timeout_s = float(timeout_s)
+        self._processes = max(1, int(processes))
+        self._running: dict[tuple[int, int], tuple[subprocess.Popen, threading.Thread, dict, float]] = {}
+
+    def plan(self, keys: list[tuple[int, int]]) -> None:
+        """Keep the runs of `keys` only, and start the first of them while fewer than `processes` run."""
+        for key in [k for k in self._running if k not in keys]:
+            self._stop(key)
+        for key in keys:
+            if len(self._running) >= self._processes:
+                break
+            if key not in self._running:
+                self._start(key)
+
+    def result(self, key: tuple[int, int], *, check_cancel: CheckCancel | None = None
+               ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """The run of `key`: (vertices, faces, seconds, start), or its QuadriflowFailed raised."""
+        if key not in self._running:
+            self._start(key)
+        proc, talker, out, started = self._running[key]
+        try:
+            while talker.is_alive():
+                deadline = started + self._timeout_s
+                talker.join(max(0.0, min(_CHECK_EVERY_S, deadline - time.monotonic())))
+                if not talker.is_alive():
+                    break
+                if time.monotonic() > deadline:
+                    raise QuadriflowFailed(f"timed out after {self._timeout_s:.0f} s")
+                if check_cancel is not None:
+                    check_cancel()
+        finally:
+            self._stop(key)
+        vertices, faces = _decode_result(proc.returncode, out.get("out", b""), out.get("err", b""))
+        return vertices, faces, time.monotonic() - started, started
+
+    def close(self) -> None:
+        """Kill every child still running."""
+        for key in list(self._running):
+            self._stop(key)
+
+    def _start(self, key: tuple[int, int]) -> None:
+        target, seed = key
+        request = _encode_request(*self._mesh, target_faces=target, seed=seed, timeout_s=self._timeout_s,
+                                  **self._switches)
+        proc = _start_child()
+        out: dict[str, bytes] = {}
+
+        def talk() -> None:
+            # communicate() in a thread: polling communicate(timeout=...) cannot resume sending stdin.
+            out["out"], out["err"] = proc.communicate(input=request)
+
+        talker = threading.Thread(target=talk, daemon=True)
+        talker.start()
+        self._running[key] = (proc, talker, out, time.monotonic())
+
+    def _stop(self, key: tuple[int, int]) -> None:
+        proc, talker, _, _ = self._running.pop(key)
+        if proc.poll() is None:
+            proc.kill()
+        talker.join()
 
 
 def _encode_request(vertices: np.ndarray, triangles: np.ndarray, *, target_faces: int, seed: int,
@@ -107,41 +196,6 @@ def _start_child() -> subprocess.Popen:
     env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return subprocess.Popen([sys.executable, "-m", "cam.remesh.child"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-
-
-def _exchange(proc: subprocess.Popen, request: bytes, *, timeout_s: float,
-              check_cancel: CheckCancel | None) -> tuple[bytes, bytes]:
-    """Send the request and collect stdout and stderr; the child is dead when this returns, however it returns.
-
-    Raises
-    ------
-    QuadriflowFailed
-        When the child runs past ``timeout_s``.
-    """
-    # communicate() in a thread: polling communicate(timeout=...) cannot resume sending stdin.
-    result: dict[str, bytes] = {}
-
-    def talk() -> None:
-        result["out"], result["err"] = proc.communicate(input=request)
-
-    talker = threading.Thread(target=talk, daemon=True)
-    talker.start()
-    deadline = time.monotonic() + timeout_s
-    try:
-        while talker.is_alive():
-            # A time limit shorter than the check interval holds too.
-            talker.join(max(0.0, min(_CHECK_EVERY_S, deadline - time.monotonic())))
-            if not talker.is_alive():
-                break
-            if time.monotonic() > deadline:
-                raise QuadriflowFailed(f"timed out after {timeout_s:.0f} s")
-            if check_cancel is not None:
-                check_cancel()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        talker.join()
-    return result.get("out", b""), result.get("err", b"")
 
 
 def _decode_result(returncode: int | None, out: bytes, err: bytes) -> tuple[np.ndarray, np.ndarray]:

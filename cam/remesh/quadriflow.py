@@ -25,7 +25,7 @@ from cam import CheckCancel, GeometryError, Progress
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
-from cam.remesh.process import QuadriflowFailed, run_quadriflow
+from cam.remesh.process import QuadriflowFailed, QuadriflowRuns, run_quadriflow
 
 __all__ = ["RemeshFailed", "RemeshResult", "boundary_loop_count", "remesh_quads"]
 
@@ -106,6 +106,7 @@ def remesh_quads(
     progress: Progress | None = None,
     check_cancel: CheckCancel | None = None,
     crease_angle_deg: float = _SHARP_ANGLE_DEG,
+    processes: int = 1,
 ) -> RemeshResult:
     """Remesh a triangle mesh into a checked, feature-aligned quad mesh.
 
@@ -148,6 +149,10 @@ def remesh_quads(
         share of their length that quad edges follow within 0.2 % of the bounding-box diagonal) and
         ``straddling_quads`` (see :func:`cam.remesh.creases.measure_crease_conformity`). Measured, not used
         to choose: the choice above stays on ``missed_crease_mm``. Default: ``segment.sharp_angle_deg``'s.
+    processes
+        QuadriFlow runs at once: the runs that would follow if the current one passed start beside it
+        (each in its own child process), and are killed when they are not wanted after all. The runs made
+        and the layout kept are those of one run at a time.
 
     Returns
     -------
@@ -165,7 +170,8 @@ def remesh_quads(
         When every attempt failed: the message lists each attempt's seed and reason.
     """
     mesh = _prepare_input(vertices, faces)
-    accepted, failures, runs = _run_attempts(mesh, params, progress=progress, check_cancel=check_cancel)
+    accepted, failures, runs = _run_attempts(mesh, params, processes=processes, progress=progress,
+                                             check_cancel=check_cancel)
     if not accepted:
         raise RemeshFailed(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): "
                            + "; ".join(failures) + ". Try another remesh.target_faces or remesh.seed")
@@ -191,50 +197,100 @@ def _prepare_input(vertices: np.ndarray, faces: np.ndarray) -> _Input:
     diag = float(np.linalg.norm(np.ptp(verts[np.unique(tris)], axis=0)))
     if diag <= 0:
         raise GeometryError("the mesh has zero extent")
+    _check_manifold(tris)
     return _Input(verts, tris, boundary_loop_count(tris, len(verts)), diag)
 
 
-def _run_attempts(mesh: _Input, params: RemeshParams, *, progress: Progress | None,
+def _check_manifold(tris: np.ndarray) -> None:
+    """GeometryError naming the edges that no quad layout can follow: an edge of more than two triangles, or
+    one that two triangles run the same way (their orientations disagree). QuadriFlow takes such a mesh
+    without complaint and makes a layout of the wrong surface."""
+    directed = np.stack([tris, np.roll(tris, -1, axis=1)], axis=2).reshape(-1, 2)
+    _, shared = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    _, same_way = np.unique(directed, axis=0, return_counts=True)
+    crowded, flipped = int((shared > 2).sum()), int((same_way > 1).sum())
+    if crowded or flipped:
+        raise GeometryError(f"the mesh is not a manifold surface: {crowded} edge(s) shared by more than two "
+                            f"triangles, {flipped} edge(s) that two triangles run the same way (inconsistent "
+                            "orientation); repair the mesh (or upload the cloud) and try again")
+
+
+def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progress: Progress | None,
                   check_cancel: CheckCancel | None) -> tuple[list[RemeshResult], list[str], int]:
     """Run QuadriFlow until ``params.candidates`` results passed or the attempts are spent.
+
+    With ``processes`` > 1 the runs that would follow if this one passed run beside it (`QuadriflowRuns`);
+    which runs are made, and their results, are those of the serial loop.
 
     Returns the results that passed, a sentence per failed run, and how many runs were made.
     """
     failures: list[str] = []
     accepted: list[RemeshResult] = []
     runs = 0
-    # After the plain attempts, one more at a quarter of the faces may split every face into quads to close
-    # triangular holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
-    for attempt in range(params.attempts + 1):
-        split = attempt == params.attempts
-        if split and (accepted or not any("triangular holes" in f for f in failures)):
-            break
-        runs = attempt + 1
-        seed, target = _seed_and_target(params, attempt, after_failure=bool(failures), split=split)
-        if progress is not None:
-            progress(attempt / (params.attempts + 1), f"QuadriFlow, seed {seed}")
-        started = time.monotonic()
-        try:
-            # Looked up in this module at each run, so that a test can stand in for QuadriFlow here.
-            raw_v, raw_f = run_quadriflow(mesh.vertices, mesh.triangles, target_faces=target, seed=seed,
-                                          preserve_sharp=params.preserve_sharp,
-                                          preserve_boundary=mesh.boundary_loops > 0,
-                                          min_cost_flow=params.min_cost_flow, timeout_s=params.timeout_s,
-                                          check_cancel=check_cancel)
-            quadriflow_s = time.monotonic() - started
+    pool = None
+    if processes > 1:
+        pool = QuadriflowRuns(mesh.vertices, mesh.triangles, preserve_sharp=params.preserve_sharp,
+                              preserve_boundary=mesh.boundary_loops > 0, min_cost_flow=params.min_cost_flow,
+                              timeout_s=params.timeout_s, processes=processes)
+
+    def upcoming(first: int, wanted: int) -> list[tuple[int, int]]:
+        # (target, seed) of the plain attempts from `first` on, while `wanted` more may pass, as now predicted.
+        last = min(params.attempts, first + max(wanted, 0))
+        return [_seed_and_target(params, a, after_failure=bool(failures), split=False)[::-1]
+                for a in range(first, last)]
+
+    try:
+        # After the plain attempts, one more at a quarter of the faces may split every face into quads to close
+        # triangular holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
+        for attempt in range(params.attempts + 1):
+            split = attempt == params.attempts
+            if split and (accepted or not any("triangular holes" in f for f in failures)):
+                break
+            runs = attempt + 1
+            seed, target = _seed_and_target(params, attempt, after_failure=bool(failures), split=split)
             if progress is not None:
-                progress((attempt + 0.8) / (params.attempts + 1), "checking the quads")
-            out_v, out_f, facts = accept_quads(raw_v, raw_f, mesh.vertices, mesh.triangles,
-                                               boundary_loops=mesh.boundary_loops, diagonal_mm=mesh.diagonal_mm,
-                                               max_hausdorff_ratio=params.max_hausdorff_ratio, split_unpaired=split)
-        except (QuadriflowFailed, ValueError) as exc:
-            failures.append(f"seed {seed}, {target} faces: {exc}")
-            continue
-        accepted.append(_measure_candidate(mesh, params, out_v, out_f, facts, seed=seed, runs=attempt + 1,
-                                           target=target, quadriflow_s=quadriflow_s, started=started))
-        if len(accepted) >= params.candidates:
-            break
+                progress(attempt / (params.attempts + 1), f"QuadriFlow, seed {seed}")
+            following = [] if split else upcoming(attempt + 1, params.candidates - len(accepted) - 1)
+            try:
+                raw_v, raw_f, quadriflow_s, started = _quadriflow(mesh, params, pool, (target, seed), following,
+                                                                  check_cancel)
+                if progress is not None:
+                    progress((attempt + 0.8) / (params.attempts + 1), "checking the quads")
+                out_v, out_f, facts = accept_quads(raw_v, raw_f, mesh.vertices, mesh.triangles,
+                                                   boundary_loops=mesh.boundary_loops, diagonal_mm=mesh.diagonal_mm,
+                                                   max_hausdorff_ratio=params.max_hausdorff_ratio,
+                                                   split_unpaired=split)
+            except (QuadriflowFailed, ValueError) as exc:
+                failures.append(f"seed {seed}, {target} faces: {exc}")
+                continue
+            accepted.append(_measure_candidate(mesh, params, out_v, out_f, facts, seed=seed, runs=attempt + 1,
+                                               target=target, quadriflow_s=quadriflow_s, started=started))
+            if len(accepted) >= params.candidates:
+                break
+    finally:
+        if pool is not None:
+            pool.close()
     return accepted, failures, runs
+
+
+def _quadriflow(mesh: _Input, params: RemeshParams, pool: QuadriflowRuns | None, key: tuple[int, int],
+                following: list[tuple[int, int]], check_cancel: CheckCancel | None
+                ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The run of key (target, seed): vertices, faces, seconds and start on `time.monotonic`; with a pool,
+    the `following` runs (those wanted should this one pass) run beside it. QuadriflowFailed as raised."""
+    target, seed = key
+    if pool is None:
+        started = time.monotonic()
+        # Looked up in this module at each run, so that a test can stand in for QuadriFlow here.
+        raw_v, raw_f = run_quadriflow(mesh.vertices, mesh.triangles, target_faces=target, seed=seed,
+                                      preserve_sharp=params.preserve_sharp, preserve_boundary=mesh.boundary_loops > 0,
+                                      min_cost_flow=params.min_cost_flow, timeout_s=params.timeout_s,
+                                      check_cancel=check_cancel)
+        return raw_v, raw_f, time.monotonic() - started, started
+    pool.plan([key, *following])
+    result = pool.result(key, check_cancel=check_cancel)
+    pool.plan(following)  # while this result is checked
+    return result
 
 
 def _seed_and_target(params: RemeshParams, attempt: int, *, after_failure: bool, split: bool) -> tuple[int, int]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 import trimesh
@@ -165,6 +167,25 @@ def test_bad_inputs_are_named():
         remesh_quads(np.zeros((3, 3)), np.array([[0, 1, 2]]))
 
 
+def test_a_mesh_that_is_not_a_manifold_surface_is_refused_with_its_edges_counted():
+    # Two boxes that share one edge: that edge has four triangles. A box with one triangle turned over:
+    # its three edges each run the same way in two triangles. QuadriFlow would take both.
+    box = _box_triangles()
+    other = box.vertices + (box.vertices.max(axis=0) - box.vertices.min(axis=0)) * [1, 1, 0]
+    # Glue the second box's corner edge onto the first's: a vertical edge where the boxes touch.
+    touching = np.concatenate([box.vertices, other])
+    faces = np.concatenate([box.faces, box.faces + len(box.vertices)])
+    lo, hi = box.vertices.min(axis=0), box.vertices.max(axis=0)
+    merged = trimesh.Trimesh(touching, faces, process=True)  # merges the shared edge's vertices
+    assert np.isclose(other.min(axis=0)[:2], hi[:2]).all() and lo[2] == other.min(axis=0)[2]
+    with pytest.raises(GeometryError, match=r"not a manifold surface: \d+ edge\(s\) shared by more than two"):
+        remesh_quads(merged.vertices, merged.faces, RemeshParams(target_faces=300, timeout_s=60))
+    flipped = box.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    with pytest.raises(GeometryError, match=r"0 edge\(s\) shared by more than two triangles, 3 edge\(s\) that two"):
+        remesh_quads(box.vertices, flipped, RemeshParams(target_faces=300, timeout_s=60))
+
+
 def test_boundary_loops_of_a_triangle_mesh():
     mesh = _box_triangles()
     assert boundary_loop_count(mesh.faces, len(mesh.vertices)) == 0
@@ -217,14 +238,19 @@ def test_remesh_stage_lets_the_cancel_through(tmp_path):
 def test_a_remesh_failure_skips_the_stage_with_its_reason(tmp_path, monkeypatch):
     # No quad layout is no dead end: the stage ends skipped, saying why, and plan finishes the part from
     # mesh.ply alone.
-    import cam.remesh.quadriflow as remesh
+    import subprocess
+    import sys
+
+    from cam.remesh import process
     from worker.context import StageSkipped
     from worker.stages.remesh import run_remesh
 
-    def crashed(vertices, triangles, **kw):
-        raise QuadriflowFailed("QuadriFlow crashed (exit status -11)")
+    def crashing_child():
+        # A child that dies of a segmentation fault, as QuadriFlow does on some inputs.
+        return subprocess.Popen([sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
-    monkeypatch.setattr(remesh, "run_quadriflow", crashed)
+    monkeypatch.setattr(process, "_start_child", crashing_child)
     with pytest.raises(StageSkipped) as info:
         run_remesh(_stage_ctx(tmp_path, _box_triangles()))
     assert str(info.value) == ("no usable quad layout (QuadriFlow gave no usable quad mesh in 2 attempt(s): seed 0, "
@@ -277,3 +303,47 @@ def test_the_child_does_not_outlive_a_killed_parent(tmp_path):
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+def _without_times(report: dict) -> dict:
+    return {k: v for k, v in report.items() if not k.endswith("_s")}
+
+
+def test_runs_side_by_side_make_the_layout_of_one_run_at_a_time():
+    # Two QuadriFlow children at once: the same runs, the same candidates, the same layout kept.
+    mesh = _box_with_a_corner_cut_off()
+    params = RemeshParams(target_faces=400, seed=0, candidates=3, timeout_s=120)
+    serial = remesh_quads(mesh.vertices, mesh.faces, params)
+    both = remesh_quads(mesh.vertices, mesh.faces, params, processes=2)
+    np.testing.assert_array_equal(both.vertices, serial.vertices)
+    np.testing.assert_array_equal(both.faces, serial.faces)
+    assert _without_times(both.report) == _without_times(serial.report)
+
+
+def test_runs_side_by_side_after_a_failure_take_the_nudged_counts(monkeypatch):
+    # A run that fails changes the face counts of the runs after it; the runs started beside it at the
+    # target are dropped and the serial loop's runs made instead.
+    from cam.remesh import process
+
+    start = process._start_child
+
+    def failing_seed_1():
+        proc = start()
+        real = proc.communicate
+
+        def communicate(input=None):
+            if np.load(io.BytesIO(input))["seed"] == 1:
+                proc.kill()
+            return real(input=input)
+
+        proc.communicate = communicate
+        return proc
+
+    monkeypatch.setattr(process, "_start_child", failing_seed_1)
+    mesh = _box_triangles()
+    params = RemeshParams(target_faces=300, seed=0, attempts=3, candidates=2, timeout_s=120)
+    result = remesh_quads(mesh.vertices, mesh.faces, params, processes=2)
+    assert [c["seed"] for c in result.report["candidates"]] == [0, 2]
+    assert [c["quadriflow_target_faces"] for c in result.report["candidates"]] == [300, 312]
+    assert len(result.report["failed_attempts"]) == 1
+    assert result.report["failed_attempts"][0].startswith("seed 1, 300 faces: QuadriFlow crashed")

@@ -8,6 +8,7 @@ from cam import GeometryError
 from cam.io import read_ply, write_json
 from cam.io.quads import write_quad_obj
 from cam.remesh.quadriflow import remesh_quads
+from core.config import stage_processes
 from worker.context import StageContext, StageError, StageSkipped
 
 
@@ -20,7 +21,8 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
         # Crease recall and straddling quads in remesh.json are measured at segment's default θ, not at
         # segment.sharp_angle_deg: this stage's cache key holds the remesh group only.
         result = remesh_quads(mesh.points, mesh.faces, ctx.params.remesh, progress=ctx.progress_between(0.05, 0.9),
-                              check_cancel=ctx.check_cancel)
+                              check_cancel=ctx.check_cancel,
+                              processes=stage_processes(ctx.settings.get("stage_processes")))
     except GeometryError as exc:
         # No quad layout, no patches: the job goes on, and plan finishes the part from mesh.ply alone.
         raise StageSkipped(f"no usable quad layout ({exc}); plan finishes the part from mesh.ply without "
