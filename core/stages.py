@@ -76,7 +76,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="remesh",
-        version="2",
+        version="3",
         inputs=("mesh.ply",),
         outputs=("quads.obj", "remesh.json"),
         param_groups=("remesh",),
