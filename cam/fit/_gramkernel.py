@@ -36,20 +36,31 @@ def band_slot(di: np.ndarray, dj: np.ndarray, degree: tuple[int, int]) -> np.nda
 
 
 @njit(cache=True, nogil=True)
-def _accumulate(cols, vals, weights, p, q, band):
+def _accumulate(cols, vals, weights, order, p, q, band):
     n, m = cols.shape
     pairs = weights.shape[1]
     width = 2 * q + 1
-    for r in range(n):
+    cell = np.zeros((m, m, pairs))  # the current knot cell's block, summed here and added to the band once
+    for t in range(n + 1):
+        r = order[t] if t < n else -1
+        if t > 0 and (r < 0 or cols[r, 0] != cols[order[t - 1], 0]):
+            last = order[t - 1]
+            for a in range(m):
+                ia, ja = a // (q + 1), a % (q + 1)
+                c = cols[last, a]
+                for b in range(a, m):
+                    slot = (b // (q + 1) - ia + p) * width + (b % (q + 1) - ja + q)
+                    for k in range(pairs):
+                        band[c, slot, k] += cell[a, b, k]
+                        cell[a, b, k] = 0.0
+        if r < 0:
+            break
         for a in range(m):
-            ia, ja = a // (q + 1), a % (q + 1)
-            c = cols[r, a]
             va = vals[r, a]
             for b in range(a, m):  # columns grow with the position: b ≥ a is the upper triangle
-                slot = (b // (q + 1) - ia + p) * width + (b % (q + 1) - ja + q)
                 product = va * vals[r, b]
                 for k in range(pairs):
-                    band[c, slot, k] += weights[r, k] * product
+                    cell[a, b, k] += weights[r, k] * product
 
 
 def accumulate_grams(cols: np.ndarray, vals: np.ndarray, weights: np.ndarray, degree: tuple[int, int],
@@ -71,5 +82,8 @@ def accumulate_grams(cols: np.ndarray, vals: np.ndarray, weights: np.ndarray, de
         The blocks in band storage (see the module docstring), entries (c, c2) with c2 ≥ c only (the
         blocks are symmetric); updated in place.
     """
-    _accumulate(np.ascontiguousarray(cols, dtype=np.int64), np.ascontiguousarray(vals, dtype=np.float64),
-                np.ascontiguousarray(weights, dtype=np.float64), int(degree[0]), int(degree[1]), band)
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    # Rows of one knot cell share their columns: summed cell by cell, the band is touched once per cell.
+    order = np.argsort(cols[:, 0], kind="stable") if len(cols) else np.zeros(0, dtype=np.int64)
+    _accumulate(cols, np.ascontiguousarray(vals, dtype=np.float64), np.ascontiguousarray(weights, dtype=np.float64),
+                order, int(degree[0]), int(degree[1]), band)
