@@ -1,12 +1,20 @@
-"""Benchmark of the ``denoise`` stage (cam.denoise.mesh_tgv, MeshTGV) on Fandisk and Block.
+"""Benchmark of the ``denoise`` stage (cam.denoise.mesh_tgv, MeshTGV) on a corpus of noisy meshes.
 
-Usage: python bench/denoise.py [--data DIR] [--out bench/results]
+Usage: python bench/denoise.py [--data DIR] [--out bench/results] [--no-picture]
 
-Reads ``{fandisk,block}_{noisy,gt,tgvresult}.obj`` from ../shared/data (not part of the project; the
-files are never copied), runs
+Reads ``{fandisk,block,kinect_cone}_{noisy,gt,tgvresult}.obj`` from ../shared/data (not part of the
+project; the files are never copied) and makes more noisy meshes from the clean ones (``CORPUS``
+below: Gaussian noise of a stated share of the mean edge length along the vertex normals or in every
+direction, impulsive noise, analytic shapes). Each mesh is marked ``tuned`` (its results were looked
+at while the automatic weights were chosen) or ``held out`` (run only after they were fixed). Runs
 
-  * ours: ``denoise_mesh`` with its defaults (and once more with ``flip_repair_rounds=0``, i.e. the
-    paper's vertex update alone, to show what the folded-face repair contributes);
+  * ours: ``denoise_mesh`` with its defaults, i.e. weights chosen from the measured noise (and on
+    Fandisk and Block once more with ``flip_repair_rounds=0``, i.e. the paper's vertex update alone,
+    to show what the folded-face repair contributes);
+  * ours before the automatic weights: alpha0=0.15, alpha1=0.4 scaled by min(1, median dihedral /
+    15 deg), the defaults until then, set by hand;
+  * MeshLab's two-step smoothing (pymeshlab ``apply_coord_two_steps_smoothing``, its defaults), the
+    baseline of issue 36;
   * a classic baseline, bilateral normal filtering (Zheng, Fu, Au, Tai, "Bilateral normal filtering
     for mesh denoising", IEEE TVCG 2011, local iterative scheme) implemented below, followed by the
     same vertex update (no repair);
@@ -14,7 +22,7 @@ files are never copied), runs
 
 and measures the mean angle (degrees) between face normals and the clean mesh's face normals, for the
 filtered normals and for the normals of the output mesh, plus wall time. Writes
-``denoise.md`` (table) and ``denoise.png`` (noisy / ours / authors for both meshes) into --out.
+``denoise.md`` (tables) and ``denoise.png`` (noisy / ours / authors for the three shared meshes) into --out.
 """
 
 from __future__ import annotations
@@ -38,9 +46,36 @@ sys.path.insert(0, str(REPO))
 from cam.denoise import denoise_mesh
 from cam.params import DenoiseParams
 
-AUTHORS = {  # from ../shared/data/README.md: (filtered normals, normals of their result mesh)
+AUTHORS = {  # from ../shared/data/README.md: (filtered normals, normals of their result mesh or None)
     "fandisk": (2.2046, 2.07),
     "block": (1.8801, 2.85),
+    "kinect_cone": (6.96132, None),
+}
+#: The weights before they followed the noise (hand-set now): what "before" measures.
+BEFORE = {"alpha0": 0.15, "alpha1": 0.4, "noise_reference_deg": 15.0}
+
+#: name: (set, how it is made). "tuned": looked at while choosing the automatic weights (cam/denoise/
+#: weights.py); "held out": first run after they were fixed, never tuned on.
+CORPUS = {
+    "fandisk": ("tuned", "shared noisy file (synthetic Gaussian noise)"),
+    "kinect_cone": ("tuned", "shared noisy file (real Kinect scan)"),
+    "fandisk-n0.5": ("tuned", "Fandisk + Gaussian 0.5 mean edge lengths along the normals (seed 1)"),
+    "fandisk-n0.1": ("tuned", "Fandisk + Gaussian 0.1 mean edge lengths along the normals (seed 2)"),
+    "block": ("held out", ("shared noisy file (synthetic Gaussian noise); the base weights 0.15 / 0.4 were "
+              "tuned on it and Fandisk before this work")),
+    "fandisk-n0.7": ("held out", ("Fandisk + Gaussian 0.7 mean edge lengths along the normals (seed 0): "
+                     "issue 36's heavy-noise CAD mesh")),
+    "block-n0.7": ("held out", "Block + Gaussian 0.7 mean edge lengths along the normals (seed 0)"),
+    "block-i0.3": ("held out", "Block + Gaussian 0.3 mean edge lengths on every coordinate (seed 4)"),
+    "block-n0.05": ("held out", "Block + Gaussian 0.05 mean edge lengths along the normals (seed 7)"),
+    "fandisk-impulse": ("held out", ("Fandisk, 10 % of the vertices moved 1 mean edge length along the "
+                        "normal, either way (seed 6)")),
+    "cube-n0.4": ("held out", ("unit cube (trimesh box, 4 subdivisions) + Gaussian 0.4 mean edge lengths "
+                  "along the normals (seed 9)")),
+    "sphere-n0.3": ("held out", ("icosphere (5 subdivisions) + Gaussian 0.3 mean edge lengths along the "
+                    "normals (seed 5)")),
+    "kinect_cone-n0.3": ("held out", ("the Kinect cone's reference surface + Gaussian 0.3 mean edge "
+                         "lengths along the normals (seed 8): white noise on the real scan's shape")),
 }
 
 
@@ -56,6 +91,63 @@ def mean_angle(a, b) -> float:
 def load(path: Path):
     m = trimesh.load(path, process=False)
     return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def mean_edge_length(v, f) -> float:
+    e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    return float(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1).mean())
+
+
+def _along_normals(v, f, share, seed):
+    normals = trimesh.Trimesh(v, f, process=False).vertex_normals
+    step = np.random.default_rng(seed).normal(scale=share * mean_edge_length(v, f), size=len(v))
+    return v + step[:, None] * normals
+
+
+def make(name: str, data: Path):
+    """(noisy vertices, clean vertices, faces) of a corpus mesh."""
+    if name in ("fandisk", "block", "kinect_cone"):
+        vn, f = load(data / f"{name}_noisy.obj")
+        vg, fg = load(data / f"{name}_gt.obj")
+        assert np.array_equal(f, fg), "connectivity differs"
+        return vn, vg, f
+    if name == "cube-n0.4":
+        box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+        for _ in range(4):
+            box = box.subdivide()
+        vg, f = np.asarray(box.vertices, float), np.asarray(box.faces, np.int64)
+        return _along_normals(vg, f, 0.4, 9), vg, f
+    if name == "sphere-n0.3":
+        s = trimesh.creation.icosphere(subdivisions=5)
+        vg, f = np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+        return _along_normals(vg, f, 0.3, 5), vg, f
+    base, _, kind = name.partition("-")
+    vg, f = load(data / f"{base}_gt.obj")
+    if kind == "impulse":
+        rng = np.random.default_rng(6)
+        pick = rng.random(len(vg)) < 0.10
+        normals = trimesh.Trimesh(vg, f, process=False).vertex_normals
+        step = np.where(pick, rng.choice([-1.0, 1.0], size=len(vg)), 0.0) * mean_edge_length(vg, f)
+        return vg + step[:, None] * normals, vg, f
+    share = float(kind[1:])
+    seeds = {"fandisk-n0.5": 1, "fandisk-n0.1": 2, "fandisk-n0.7": 0, "block-n0.7": 0, "block-n0.05": 7,
+             "kinect_cone-n0.3": 8}
+    if kind.startswith("i"):
+        rng = np.random.default_rng(4)
+        return vg + rng.normal(scale=share * mean_edge_length(vg, f), size=vg.shape), vg, f
+    return _along_normals(vg, f, share, seeds[name]), vg, f
+
+
+def two_step(v, f):
+    """MeshLab's two-step smoothing with its defaults (normals smoothed, then vertices fitted to them)."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v, face_matrix=f.astype(np.int32)))
+    ms.apply_coord_two_steps_smoothing()
+    m = ms.current_mesh()
+    assert np.array_equal(m.face_matrix(), f), "two-step changed the faces"
+    return np.asarray(m.vertex_matrix(), dtype=np.float64)
 
 
 # --- baseline: bilateral normal filtering + the same vertex update ----------------------------------
@@ -131,6 +223,138 @@ def machine() -> dict:
             "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset")}
 
 
+def _timed(fn, *args, **kwargs):
+    t = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t
+
+
+def run_mesh(name: str, data: Path) -> dict:
+    """Every method on one corpus mesh; errors in degrees, times in s."""
+    vn, vg, f = make(name, data)
+    truth = face_normals(vg, f)
+    ours, t_ours = _timed(denoise_mesh, vn, f)
+    before, t_before = _timed(denoise_mesh, vn, f, DenoiseParams(**BEFORE))
+    xt, t_two = _timed(two_step, vn, f)
+    (xb, nb), t_bil = _timed(bilateral_normal_filter, vn, f)
+    row = {
+        "mesh": name, "set": CORPUS[name][0], "faces": len(f),
+        "noisy": mean_angle(face_normals(vn, f), truth),
+        "noise": ours.report["noise"], "weights": ours.report["weights"],
+        "ours_filtered": mean_angle(ours.face_normals, truth),
+        "ours_mesh": mean_angle(face_normals(ours.vertices, f), truth),
+        "before_filtered": mean_angle(before.face_normals, truth),
+        "before_mesh": mean_angle(face_normals(before.vertices, f), truth),
+        "two_step_mesh": mean_angle(face_normals(xt, f), truth),
+        "bil_filtered": mean_angle(nb, truth), "bil_mesh": mean_angle(face_normals(xb, f), truth),
+        "ours_time": t_ours, "before_time": t_before, "two_step_time": t_two, "bil_time": t_bil,
+        "ours_iterations": ours.iterations, "ours_converged": ours.report["converged"],
+        "ours_time_split": ours.report["time_s"], "folded": ours.report["folded_faces"],
+        "vertices": (vn, ours.vertices, f),
+    }
+    if name in AUTHORS:
+        va, fa = load(data / f"{name}_tgvresult.obj")
+        assert np.array_equal(f, fa), "connectivity differs"
+        row["authors_filtered"], row["authors_mesh_readme"] = AUTHORS[name]
+        row["authors_mesh_measured"] = mean_angle(face_normals(va, f), truth)
+        row["authors_vertices"] = va
+    if name in ("fandisk", "block"):
+        plain = denoise_mesh(vn, f, DenoiseParams(flip_repair_rounds=0))
+        row["ours_plain_mesh"] = mean_angle(face_normals(plain.vertices, f), truth)
+        clean = denoise_mesh(vg, f)  # what the filter does to noise-free input
+        clean_full = denoise_mesh(vg, f, DenoiseParams(alpha0=0.15, alpha1=0.4))  # full weights, by hand
+        row["clean_filtered"] = mean_angle(clean.face_normals, truth)
+        row["clean_mesh"] = mean_angle(face_normals(clean.vertices, f), truth)
+        row["clean_full_filtered"] = mean_angle(clean_full.face_normals, truth)
+        row["clean_full_mesh"] = mean_angle(face_normals(clean_full.vertices, f), truth)
+        clean_before = denoise_mesh(vg, f, DenoiseParams(**BEFORE))
+        row["clean_before_filtered"] = mean_angle(clean_before.face_normals, truth)
+        row["clean_before_mesh"] = mean_angle(face_normals(clean_before.vertices, f), truth)
+        row["clean_noise"] = clean.report["noise"]
+        row["clean_weights"] = clean.report["weights"]
+    return row
+
+
+#: The previous committed table (alpha0=0.15, alpha1=0.4 scaled by the median dihedral), filtered / mesh.
+PREVIOUS = {"fandisk": (1.8141, 1.6381), "block": (1.7794, 1.6952)}
+
+
+def notes(rows: list[dict]) -> list[str]:
+    """The Notes section: what changed, before and after, the tuning split, times."""
+    by = {r["mesh"]: r for r in rows}
+    k = by["kinect_cone"]
+    tuned = [r["mesh"] for r in rows if r["set"] == "tuned"]
+    held = [r["mesh"] for r in rows if r["set"] == "held out"]
+    worse_than_two_step = [r["mesh"] for r in rows if r["ours_mesh"] >= r["two_step_mesh"]]
+    r_two = [r["ours_time"] / r["two_step_time"] for r in rows]
+    r_bil = [r["ours_time"] / r["bil_time"] for r in rows]
+    r_before = [r["ours_time"] / r["before_time"] for r in rows]
+    t_noise = [r["ours_time_split"]["noise_estimate"] / r["ours_time"] for r in rows]
+    lines = [
+        "## Notes",
+        "",
+        ("What changed (issue 36, \"denoising whose strength follows the noise\"): alpha0 and alpha1 are "
+         "unset by default and chosen from two numbers measured on the input: sigma, the robust (median) "
+         "spread of each vertex about a quadric fitted over its 2-ring, in mean edge lengths, and the "
+         "ratio of the same over 3 rings, which is about 1 for white noise and grows when neighbouring "
+         "vertices move together. White noise: alpha1 grows as sigma^1.3 above the band (0.18-0.26) where "
+         "the old weights 0.15 / 0.4 were tuned and falls below it (alpha0 falls, never rises); correlated "
+         "noise (ratio over 1.3; a ramp from 1.2): alpha0 0.6, alpha1 1.0. A weight set by hand is used "
+         "as given; `denoise.json` reports `noise` and `weights` (the weights used, where each came from, "
+         "and what the noise alone would have chosen). The numbers and the sweeps behind them are in "
+         "`cam/denoise/weights.py`."),
+        "",
+        "Before -> after, filtered / mesh (before: the old defaults, run here in the same run): "
+        + "; ".join(f"{r['mesh']} {r['before_filtered']:.2f} / {r['before_mesh']:.2f} -> "
+                    f"{r['ours_filtered']:.2f} / {r['ours_mesh']:.2f}" for r in rows)
+        + ". The previous committed table had Fandisk "
+        + f"{PREVIOUS['fandisk'][0]} / {PREVIOUS['fandisk'][1]} and Block {PREVIOUS['block'][0]} / "
+        + f"{PREVIOUS['block'][1]}.",
+        "",
+        (f"The Kinect cone: {k['ours_filtered']:.2f} deg for the filtered normals against the authors' "
+         f"{k['authors_filtered']:.2f} (issue 36's target: at or below 6.96) "
+         f"{'- reached' if k['ours_filtered'] <= 6.96 else '- NOT reached'}; the normals of our result "
+         f"mesh, {k['ours_mesh']:.2f}, stay above those of the authors' result mesh measured here "
+         f"({k['authors_mesh_measured']:.2f}): the vertex update loses more on this scan's slivers "
+         f"({k['folded']['after_repair']} faces stay folded). Issue 36 quotes 7.95 (ours) and 6.17 "
+         "(authors) for this mesh; this bench, which measures per face and unweighted as the authors do, "
+         f"gives {k['before_filtered']:.2f} / {k['before_mesh']:.2f} for the old defaults and "
+         f"{k['authors_mesh_measured']:.2f} for the authors' mesh: the issue's figures were measured "
+         "some other way and are not reproduced here."),
+        "",
+        ("Tuned on: " + ", ".join(tuned) + " (and the Kinect cone's reference surface with white noise of "
+         "0.15 mean edge lengths, to tell the scan's noise from its shape; not in the table). Held out: "
+         + ", ".join(held) + ": run for the first time after the weight rule was fixed; no constant was "
+         "changed after. One code change came after that first run: a floor of 1e-6 on the chosen weights "
+         "was removed (it moved a clean cube's vertices in a test); it changes no weight in this table. "
+         "Block is held out from the new rule, but the base weights 0.15 / 0.4 were tuned on it (with "
+         "Fandisk) before this work."),
+        "",
+        ("Below MeshLab's two-step smoothing (its defaults, not tuned per mesh) on every mesh: "
+         + ("yes." if not worse_than_two_step else "no, not on " + ", ".join(worse_than_two_step) + ".")
+         + f" Issue 36's heavy-noise CAD mesh (fandisk-n0.7): {by['fandisk-n0.7']['ours_mesh']:.2f} deg "
+         f"against two-step's {by['fandisk-n0.7']['two_step_mesh']:.2f} (before: "
+         f"{by['fandisk-n0.7']['before_mesh']:.2f})."),
+        "",
+        (f"Time: ours / two-step {min(r_two):.0f}-{max(r_two):.0f} x, ours / bilateral "
+         f"{min(r_bil):.1f}-{max(r_bil):.1f} x, ours / before {min(r_before):.2f}-{max(r_before):.2f} x "
+         "(the 100 filter iterations dominate either way and vary with the load of this shared machine); the "
+         f"noise estimate is {100 * min(t_noise):.0f}-{100 * max(t_noise):.0f} % of our time."),
+        "",
+        ("Noticed, left alone: the estimate reads the Fandisk meshes' normal-direction noise of 0.25 and "
+         f"0.7 mean edge lengths as {by['fandisk']['noise']['sigma']:.2f} and "
+         f"{by['fandisk-n0.7']['noise']['sigma']:.2f} (within 4 % on a plane and a sphere up to 0.5, "
+         "`tests/cam/test_denoise_noise.py`): at heavy noise on a small-featured part the quadrics absorb "
+         "part of it; the weights were tuned on the estimate as it reads, so this is folded into them. The "
+         "clean meshes, filtered / mesh, before -> after: "
+         + "; ".join(f"{n} {by[n]['clean_before_filtered']:.3f} / {by[n]['clean_before_mesh']:.3f} -> "
+                     f"{by[n]['clean_filtered']:.3f} / {by[n]['clean_mesh']:.3f}" for n in ("fandisk", "block"))
+         + " (the weights read from a clean mesh's sigma differ from the old dihedral scaling's, both "
+         "tiny)."),
+    ]
+    return lines
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data")
@@ -143,56 +367,14 @@ def main() -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     mach = machine()
     load_before = os.getloadavg()
-    rows, tiles = [], []
-    for name in ("fandisk", "block"):
-        vn, f = load(args.data / f"{name}_noisy.obj")
-        vg, fg = load(args.data / f"{name}_gt.obj")
-        va, fa = load(args.data / f"{name}_tgvresult.obj")
-        assert np.array_equal(f, fg) and np.array_equal(f, fa), "connectivity differs"
-        truth = face_normals(vg, f)
-        noisy_err = mean_angle(face_normals(vn, f), truth)
-
-        t = time.perf_counter()
-        ours = denoise_mesh(vn, f)
-        t_ours = time.perf_counter() - t
-        t = time.perf_counter()
-        ours_plain = denoise_mesh(vn, f, DenoiseParams(flip_repair_rounds=0))
-        t_plain = time.perf_counter() - t
-        t = time.perf_counter()
-        xb, nb = bilateral_normal_filter(vn, f)
-        t_bil = time.perf_counter() - t
-        clean = denoise_mesh(vg, f)  # what the filter does to noise-free input
-        clean_full = denoise_mesh(vg, f, DenoiseParams(noise_reference_deg=0.0))  # ... without the noise adaptation
-
-        rows.append({
-            "mesh": name, "faces": len(f), "noisy": noisy_err,
-            "ours_filtered": mean_angle(ours.face_normals, truth),
-            "ours_mesh": mean_angle(face_normals(ours.vertices, f), truth),
-            "ours_plain_mesh": mean_angle(face_normals(ours_plain.vertices, f), truth),
-            "ours_time": t_ours, "ours_plain_time": t_plain, "ours_iterations": ours.iterations,
-            "ours_converged": ours.report["converged"],
-            "ours_time_split": ours.report["time_s"],
-            "folded": ours.report["folded_faces"],
-            "bil_filtered": mean_angle(nb, truth), "bil_mesh": mean_angle(face_normals(xb, f), truth),
-            "bil_time": t_bil,
-            "clean_filtered": mean_angle(clean.face_normals, truth),
-            "clean_mesh": mean_angle(face_normals(clean.vertices, f), truth),
-            "clean_full_filtered": mean_angle(clean_full.face_normals, truth),
-            "clean_full_mesh": mean_angle(face_normals(clean_full.vertices, f), truth),
-            "noise_scale": ours.report["scaling"]["noise_weight_scale"],
-            "median_dihedral": ours.report["scaling"]["median_dihedral_deg"],
-            "clean_median_dihedral": clean.report["scaling"]["median_dihedral_deg"],
-            "authors_filtered": AUTHORS[name][0], "authors_mesh_readme": AUTHORS[name][1],
-            "authors_mesh_measured": mean_angle(face_normals(va, f), truth),
-        })
-        print(rows[-1], flush=True)
-        if not args.no_picture:
-            view = (1.0, -0.9, 0.7) if name == "fandisk" else (1.0, 0.8, 0.9)
-            up = (0.0, 1.0, 0.0) if name == "fandisk" else (0.0, 0.0, 1.0)
-            tiles.append([render(x, f, view=view, up=up) for x in (vn, ours.vertices, va)])
+    rows = []
+    for name in CORPUS:
+        rows.append(run_mesh(name, args.data))
+        r = rows[-1]
+        print({k: v for k, v in r.items() if k not in ("vertices", "authors_vertices")}, flush=True)
     load_after = os.getloadavg()
+    by = {r["mesh"]: r for r in rows}
 
-    defaults = ", ".join(f"{k}={v}" for k, v in DenoiseParams().model_dump(exclude={"enabled"}).items())
     lines = [
         "# Denoising benchmark (MeshTGV, `cam.denoise.mesh_tgv`)",
         "",
@@ -203,70 +385,78 @@ def main() -> int:
          f"OPENBLAS_NUM_THREADS={mach['blas_threads']}; load average before/after "
          f"{load_before[0]:.1f}/{load_after[0]:.1f} (a shared machine: other jobs ran at the same time)."),
         "",
-        f"Our defaults (the same for both meshes): {defaults}.",
+        ("Ours: the defaults, alpha0 and alpha1 unset, so chosen from the noise measured on the mesh "
+         "(`cam/denoise/noise.py`, `cam/denoise/weights.py`); the other parameters: "
+         + ", ".join(f"{k}={v}" for k, v in DenoiseParams().model_dump(exclude={"enabled"}).items()
+                     if v is not None and k not in ("alpha0", "alpha1", "noise_reference_deg")) + ". "
+         "Before: the defaults until this change, alpha0=0.15, alpha1=0.4 scaled by min(1, median dihedral / "
+         "15 deg), set by hand. Noise sigma: the estimate's, in mean edge lengths (2-ring quadric fits); "
+         "correlation: its 3-ring over 2-ring ratio."),
         "",
-        ("| mesh | faces | noisy input | ours: filtered normals | ours: result mesh | "
-         "ours: mesh, paper's vertex update only | authors: filtered (README) | authors: mesh (README) | "
-         "authors: mesh (measured here) | bilateral: filtered | bilateral: mesh | "
-         "ours on the clean mesh, filtered / mesh: default | noise adaptation off |"),
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "## The corpus",
+        "",
+        ("| mesh | set | how it is made | faces | noisy input | noise sigma / correlation | weights chosen "
+         "(alpha0 / alpha1) | ours: filtered | ours: mesh | before: filtered | before: mesh | two-step: mesh | "
+         "bilateral: mesh | MeshTGV authors: filtered (README) / mesh (measured here) |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        nz, w = r["noise"], r["weights"]
+        best = min(r["ours_mesh"], r["ours_filtered"]) < r["two_step_mesh"]
+        authors = (f"{r['authors_filtered']:.2f} / {r['authors_mesh_measured']:.2f}"
+                   if "authors_filtered" in r else "–")
         lines.append(
-            f"| {r['mesh']} | {r['faces']} | {r['noisy']:.2f} | **{r['ours_filtered']:.4f}** | "
-            f"**{r['ours_mesh']:.4f}** | {r['ours_plain_mesh']:.4f} | {r['authors_filtered']:.4f} | "
-            f"{r['authors_mesh_readme']:.2f} | {r['authors_mesh_measured']:.4f} | "
-            f"{r['bil_filtered']:.4f} | {r['bil_mesh']:.4f} | "
-            f"{r['clean_filtered']:.3f} / {r['clean_mesh']:.3f} | "
-            f"{r['clean_full_filtered']:.3f} / {r['clean_full_mesh']:.3f} |"
-        )
+            f"| {r['mesh']} | {r['set']} | {CORPUS[r['mesh']][1]} | {r['faces']} | {r['noisy']:.2f} | "
+            f"{nz['sigma']:.3f} / {nz['correlation']:.2f} | {w['alpha0']:.3g} / {w['alpha1']:.3g} | "
+            f"**{r['ours_filtered']:.2f}** | **{r['ours_mesh']:.2f}** | {r['before_filtered']:.2f} | "
+            f"{r['before_mesh']:.2f} | {r['two_step_mesh']:.2f}{'' if best else ' (better than ours)'} | "
+            f"{r['bil_mesh']:.2f} | {authors} |")
     lines += [
         "",
-        ("| mesh | ours: wall time (s) | outer iterations | converged (tolerance) | "
-         "setup / factor / iterate / vertex update (s) | folded faces after update -> after repair | "
-         "bilateral baseline (s) | time ratio ours / bilateral |"),
-        "|---|---|---|---|---|---|---|---|",
+        ("| mesh | ours: wall time (s) | before (s) | two-step (s) | bilateral (s) | time ratio ours / "
+         "two-step | ours / bilateral | outer iterations | converged | setup / factor / iterate / vertex "
+         "update (s) | noise estimate (s) | folded faces after update -> after repair |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ts = r["ours_time_split"]
         lines.append(
-            f"| {r['mesh']} | {r['ours_time']:.2f} | {r['ours_iterations']} | {r['ours_converged']} | "
+            f"| {r['mesh']} | {r['ours_time']:.2f} | {r['before_time']:.2f} | {r['two_step_time']:.2f} | "
+            f"{r['bil_time']:.2f} | {r['ours_time'] / r['two_step_time']:.0f} | "
+            f"{r['ours_time'] / r['bil_time']:.1f} | {r['ours_iterations']} | {r['ours_converged']} | "
             f"{ts['setup']:.2f} / {ts['factorization']:.2f} / {ts['normal_iterations']:.2f} / "
-            f"{ts['vertex_update']:.2f} | {r['folded']['after_update']} -> {r['folded']['after_repair']} | "
-            f"{r['bil_time']:.2f} | {r['ours_time'] / r['bil_time']:.1f} |"
-        )
+            f"{ts['vertex_update']:.2f} | {ts['noise_estimate']:.2f} | "
+            f"{r['folded']['after_update']} -> {r['folded']['after_repair']} |")
     lines += [
         "",
-        "What was tuned: alpha0, alpha1 and the two penalties, jointly on these two meshes (one set of",
-        "values for both): grids over alpha0 0.05-0.3, alpha1 0.25-0.7, penalties 0.5-5 at 100-300",
-        "iterations. The chosen point sits in a flat neighbourhood: alpha0 0.13-0.17, alpha1 0.40-0.45,",
-        "penalties 1.8-2.2 all gave 1.71-1.89 deg (filtered) on both meshes. max_iterations = 100: 150",
-        "iterations gain about 0.01-0.03 deg for 50 % more time. vertex_iterations = 20 (the update",
-        "saturates by about 40). The folded-face repair after the vertex update is our addition, not the",
-        "paper's: the column 'paper's vertex update only' shows the update alone (Block's random-direction",
-        "noise folds ~280 small faces over, which a normal-only update cannot unfold).",
+        "## Fandisk and Block: the folded-face repair and clean input",
         "",
-        "Clean input: the last two columns run the filter on the clean meshes. With the full weights",
-        "(noise adaptation off) it does not leave a clean crease in place: like the TV normal filters it",
-        "builds on (a linear solve, then a projection to unit length, every iteration) it turns the faces",
-        "next to creases by a degree or two, as much as the error it leaves on the noisy input. The",
-        "default scales alpha0 and alpha1 by min(1, median dihedral angle / 15 deg): "
-        + "; ".join(f"{r['mesh']} noisy {r['median_dihedral']:.1f} deg -> scale {r['noise_scale']:.2f}, "
-                    f"clean {r['clean_median_dihedral']:.2f} deg" for r in rows) + ".",
-        "",
-        "Baseline: bilateral normal filtering (Zheng et al. 2011, local iterative scheme) written in this",
-        "script: vertex-sharing face neighbourhoods, sigma_s = mean distance between centroids of",
-        "edge-adjacent faces, sigma_r = 0.35, 20 normal iterations, then the same vertex update",
-        "(20 iterations) as ours without the repair. Not tuned per mesh.",
-        "",
-        "![noisy / ours / authors](denoise.png)",
-        "",
-        "Picture: each row noisy input, ours (defaults), the MeshTGV authors' result mesh; Fandisk top, Block bottom.",
+        ("| mesh | ours: mesh | ours: mesh, paper's vertex update only | authors: filtered (README) | "
+         "authors: mesh (README) | authors: mesh (measured here) | ours on the clean mesh, filtered / mesh: "
+         "default (noise sigma read there) | full weights 0.15 / 0.4 set by hand |"),
+        "|---|---|---|---|---|---|---|---|",
     ]
+    for name in ("fandisk", "block"):
+        r = by[name]
+        lines.append(
+            f"| {name} | {r['ours_mesh']:.4f} | {r['ours_plain_mesh']:.4f} | {r['authors_filtered']:.4f} | "
+            f"{r['authors_mesh_readme']:.2f} | {r['authors_mesh_measured']:.4f} | "
+            f"{r['clean_filtered']:.3f} / {r['clean_mesh']:.3f} (sigma {r['clean_noise']['sigma']:.4f}, "
+            f"weights {r['clean_weights']['alpha0']:.2g} / {r['clean_weights']['alpha1']:.2g}) | "
+            f"{r['clean_full_filtered']:.3f} / {r['clean_full_mesh']:.3f} |")
+    lines += ["", *notes(rows), "", "![noisy / ours / authors](denoise.png)", "",
+              ("Picture: each row noisy input, ours (defaults), the MeshTGV authors' result mesh; Fandisk, Block, "
+              "the Kinect cone.")]
     (args.out / "denoise.md").write_text("\n".join(lines) + "\n")
-    if tiles:
+    if not args.no_picture:
         from PIL import Image
 
+        views = {"fandisk": ((1.0, -0.9, 0.7), (0.0, 1.0, 0.0)), "block": ((1.0, 0.8, 0.9), (0.0, 0.0, 1.0)),
+                 "kinect_cone": ((0.3, 0.4, 1.0), (0.0, 1.0, 0.0))}
+        tiles = []
+        for name, (view, up) in views.items():
+            vn, vo, f = by[name]["vertices"]
+            tiles.append([render(x, f, view=view, up=up) for x in (vn, vo, by[name]["authors_vertices"])])
         s = tiles[0][0].size[0]
         sheet = Image.new("RGB", (3 * s, len(tiles) * s), (255, 255, 255))
         for r_, row in enumerate(tiles):

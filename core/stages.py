@@ -67,7 +67,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="denoise",
-        version="2",
+        version="3",
         inputs=("mesh_raw.ply",),
         outputs=("mesh.ply", "denoise.json"),
         param_groups=("denoise",),

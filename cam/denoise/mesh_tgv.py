@@ -2,8 +2,10 @@
 
 ``denoise_mesh`` is the public entry. The normal filtering lives in :mod:`cam.denoise.tgv`, the
 vertex update in :mod:`cam.denoise.vertices`; this module checks the input arrays, makes the mesh
-scale and translation free (lengths in units of the mean edge length), adapts the weights to the
-noise it measures, runs the filter and the update, and maps the result back to the input's units.
+scale and translation free (lengths in units of the mean edge length), measures the noise
+(:mod:`cam.denoise.noise`) and, for the weights the user left unset, chooses them from it
+(:mod:`cam.denoise.weights`), runs the filter and the update, and maps the result back to the input's
+units.
 
 Bad input: non-finite coordinates, wrong shapes, out-of-range indices -> ValueError (a caller's bug:
 the pipeline's readers rule them out; the parameters are those of a `DenoiseParams`, validated when
@@ -24,8 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cam import CheckCancel, GeometryError, Progress
+from cam.denoise.noise import estimate_noise
 from cam.denoise.tgv import FaceTopology, TGVResult, face_topology, tgv_filter_normals
 from cam.denoise.vertices import fill_degenerate_normals, unit_rows, update_vertices
+from cam.denoise.weights import Weights, weights_for_noise
 from cam.params import DenoiseParams
 
 __all__ = ["DenoiseResult", "denoise_mesh"]
@@ -69,20 +73,23 @@ def denoise_mesh(
         edges, gradients per mean edge length, each jump weighted by its edge length in mean edge
         lengths). Larger: the auxiliary field is dearer and the filter behaves more like plain TV
         (crisper creases, curved parts drift towards facets); smaller: ramps replace creases.
+        None (default): chosen from the measured noise, as alpha1.
         alpha1: weight of the first-order TGV term (jump of the normal across each edge, minus the
         jump the auxiliary field predicts, weighted by edge length in mean edge lengths), relative to
         the area-weighted fidelity (areas in mean edge lengths squared). Larger: stronger denoising.
+        None (default): chosen by :func:`cam.denoise.weights.weights_for_noise` from the noise
+        :func:`cam.denoise.noise.estimate_noise` measures on the input (its level and how correlated
+        it is from vertex to vertex). A weight given by hand is used as given.
         penalty0, penalty1: augmented-Lagrangian penalties of the two split variables (same units
         as alpha0, alpha1). They fix the linear systems, which are factored once.
         vertex_iterations: iterations of the vertex update.
         flip_repair_rounds: rounds of the folded-face repair after the update (0: paper's update only).
         max_iterations: cap on the outer iterations of the normal filter.
         tolerance: stop when |N_k - N_{k-1}| / |N_{k-1}| (Frobenius norms) falls below it.
-        noise_reference_deg: noise adaptation. The median dihedral angle over the interior edges of
-        the input measures its noise (clean CAD meshes: under 1 deg; the benchmark meshes: about
-        20 deg). alpha0 and alpha1 are multiplied by min(1, median / noise_reference_deg), so noisy
-        input gets the full weights and clean input is left (nearly) alone. 0 switches the
-        adaptation off.
+        noise_reference_deg: only for weights set by hand, the earlier noise adaptation: each is
+        multiplied by min(1, median dihedral angle of the input / noise_reference_deg). 0
+        (default): used as given. Jobs stored before the automatic choice carry alpha0=0.15,
+        alpha1=0.4, noise_reference_deg=15 and get the results they got then.
     progress : callable, optional
         ``progress(fraction, message)``, called once per outer iteration (fractions rise through
         [0, 0.9)) and once at the end with 1.0.
@@ -112,7 +119,13 @@ def denoise_mesh(
     topo = face_topology(frame.faces, len(v_in))
     median_dihedral = _median_dihedral_deg(frame.x, frame.faces, topo)
     weight_scale = _noise_weight_scale(median_dihedral, params.noise_reference_deg)
-    tgv = _filter_normals(frame, topo, params, weight_scale, progress=progress, check_cancel=check_cancel)
+    t_noise = time.perf_counter()
+    noise = estimate_noise(frame.x, frame.faces)
+    t_noise = time.perf_counter() - t_noise
+    check_cancel()
+    auto = weights_for_noise(noise)
+    alpha0, alpha1 = _weights_used(params, auto, weight_scale)
+    tgv = _filter_normals(frame, topo, params, alpha0, alpha1, progress=progress, check_cancel=check_cancel)
     t_vu = time.perf_counter()
     x_new, flips_before, flips_after = update_vertices(frame.x, frame.faces, tgv.normals, params.vertex_iterations,
                                                        params.flip_repair_rounds, check_cancel=check_cancel)
@@ -123,15 +136,17 @@ def denoise_mesh(
     warnings = _warnings(tgv, params, sliver, flips_after)
     if progress is not None:
         progress(1.0, "denoising done")
-    timings = _timings(tgv, vertex_update=t_vu_end - t_vu, total=time.perf_counter() - t0)
+    timings = _timings(tgv, noise_estimate=t_noise, vertex_update=t_vu_end - t_vu, total=time.perf_counter() - t0)
     report = {
         "iterations": int(tgv.iterations),
         "converged": bool(tgv.converged),
         "final_relative_change": float(tgv.relative_change),
         "time_s": timings,
-        "parameters": {k: (int(v) if isinstance(v, (int, np.integer)) else float(v))
+        "parameters": {k: (None if v is None else int(v) if isinstance(v, (int, np.integer)) else float(v))
                        for k, v in params.model_dump(exclude={"enabled"}).items()},
-        "scaling": _scaling_report(frame, params, median_dihedral, weight_scale),
+        "noise": noise.as_report(),
+        "weights": _weights_report(params, auto, alpha0, alpha1),
+        "scaling": _scaling_report(frame, alpha0, alpha1, median_dihedral, weight_scale),
         "mesh": _mesh_report(frame, topo, tgv, no_normal),
         "folded_faces": {"after_update": int(flips_before), "after_repair": int(flips_after)},
         "sliver_face_fraction": float(sliver),
@@ -195,13 +210,31 @@ def _normalise(v_in: np.ndarray, f_in: np.ndarray) -> _Frame:
     return _Frame(valid=valid, faces=vf, x=(v_in - center) / ell, ell=ell, center=center)
 
 
+def _weights_used(params: DenoiseParams, auto: Weights, hand_scale: float) -> tuple[float, float]:
+    # A weight the user set is theirs (scaled only by the noise_reference_deg they may have set);
+    # an unset one is the automatic choice.
+    alpha0 = auto.alpha0 if params.alpha0 is None else params.alpha0 * hand_scale
+    alpha1 = auto.alpha1 if params.alpha1 is None else params.alpha1 * hand_scale
+    return float(alpha0), float(alpha1)
+
+
+def _weights_report(params: DenoiseParams, auto: Weights, alpha0: float, alpha1: float) -> dict:
+    return {
+        "alpha0": alpha0,
+        "alpha1": alpha1,
+        "alpha0_from": "noise" if params.alpha0 is None else "parameter",
+        "alpha1_from": "noise" if params.alpha1 is None else "parameter",
+        "for_the_noise": auto.as_report(),
+    }
+
+
 def _noise_weight_scale(median_dihedral_deg: float, noise_reference_deg: float) -> float:
     if noise_reference_deg > 0:
         return min(1.0, median_dihedral_deg / noise_reference_deg)
     return 1.0
 
 
-def _filter_normals(frame: _Frame, topo: FaceTopology, params: DenoiseParams, weight_scale: float, *,
+def _filter_normals(frame: _Frame, topo: FaceTopology, params: DenoiseParams, alpha0: float, alpha1: float, *,
                     progress: Progress | None, check_cancel: CheckCancel) -> TGVResult:
     def on_iteration(k: int, rel: float) -> None:
         if progress is not None:
@@ -210,7 +243,7 @@ def _filter_normals(frame: _Frame, topo: FaceTopology, params: DenoiseParams, we
 
     return tgv_filter_normals(
         frame.x, frame.faces, topo,
-        alpha0=params.alpha0 * weight_scale, alpha1=params.alpha1 * weight_scale,
+        alpha0=alpha0, alpha1=alpha1,
         r0=params.penalty0, r1=params.penalty1,
         max_iterations=params.max_iterations, tolerance=params.tolerance,
         on_iteration=on_iteration, check_cancel=check_cancel,
@@ -250,8 +283,9 @@ def _warnings(tgv: TGVResult, params: DenoiseParams, sliver: float, flips_after:
     return warnings
 
 
-def _timings(tgv: TGVResult, *, vertex_update: float, total: float) -> dict[str, float]:
+def _timings(tgv: TGVResult, *, noise_estimate: float, vertex_update: float, total: float) -> dict[str, float]:
     return {
+        "noise_estimate": round(noise_estimate, 6),
         "setup": round(tgv.setup_seconds, 6),
         "factorization": round(tgv.factor_seconds, 6),
         "normal_iterations": round(tgv.iterate_seconds, 6),
@@ -260,15 +294,14 @@ def _timings(tgv: TGVResult, *, vertex_update: float, total: float) -> dict[str,
     }
 
 
-def _scaling_report(frame: _Frame, params: DenoiseParams, median_dihedral: float, weight_scale: float) -> dict:
-    alpha0_used = params.alpha0 * weight_scale
-    alpha1_used = params.alpha1 * weight_scale
+def _scaling_report(frame: _Frame, alpha0_used: float, alpha1_used: float, median_dihedral: float,
+                    weight_scale: float) -> dict:
     return {
         "length_unit": "mean edge length",
         "mean_edge_length": float(frame.ell),
         "center": [float(c) for c in frame.center],
         "median_dihedral_deg": float(median_dihedral),
-        "noise_weight_scale": float(weight_scale),
+        "noise_weight_scale": float(weight_scale),  # applies to hand-set weights only
         "alpha0_used": float(alpha0_used),
         "alpha1_used": float(alpha1_used),
         # the same energy written in the input's units (areas and lengths not rescaled)

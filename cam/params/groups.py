@@ -61,8 +61,10 @@ class DenoiseParams(_Group):
     """MeshTGV; weights are dimensionless (the mesh is measured in mean edge lengths)."""
 
     enabled: bool = Field(True, description="Run MeshTGV; when false the mesh is passed on unchanged.")
-    alpha0: float = Field(0.15, gt=0, le=100, description="Weight of the second-order TGV term.")
-    alpha1: float = Field(0.4, gt=0, le=100, description="Weight of the first-order TGV term (normal jumps).")
+    alpha0: float | None = Field(None, gt=0, le=100, description="Weight of the second-order TGV term. None: chosen "
+                                 "from the noise measured on the mesh (denoise.json reports it and the weights).")
+    alpha1: float | None = Field(None, gt=0, le=100, description="Weight of the first-order TGV term (normal jumps). "
+                                 "None: chosen from the measured noise, like alpha0.")
     penalty0: float = Field(2.0, gt=0, le=1000, description="Augmented-Lagrangian penalty of the second-order split.")
     penalty1: float = Field(2.0, gt=0, le=1000, description="Augmented-Lagrangian penalty of the first-order split.")
     vertex_iterations: int = Field(20, ge=0, le=1000, description="Iterations of the vertex update.")
@@ -70,8 +72,9 @@ class DenoiseParams(_Group):
     max_iterations: int = Field(100, ge=1, le=10000, description="Outer iterations of the normal filter.")
     tolerance: float = Field(1e-5, ge=0, le=1, description="Stop when the relative change of the normals is below this.")
     noise_reference_deg: float = Field(
-        15.0, ge=0, le=180, description="Noise level (deg) the weights are tuned for; the weights scale with the "
-        "measured noise relative to it. 0 turns the adaptation off.")
+        0.0, ge=0, le=180, description="Only with alpha0 and alpha1 set by hand: scale both by min(1, median dihedral "
+        "angle / this). 0: use them as given. (Jobs stored before the automatic weights hold 0.15, 0.4 and 15 and "
+        "get what they got then.)")
 
 
 class RemeshParams(_Group):

@@ -109,16 +109,16 @@ def test_a_point_cloud_is_a_clear_error(tmp_path):
 
 
 # name: (default, lower, upper, lower_inclusive); upper is inclusive. The numbers the filter is tuned for.
-FILTER_BOUNDS: dict[str, tuple[float, float, float, bool]] = {
-    "alpha0": (0.15, 0.0, 100.0, False),
-    "alpha1": (0.4, 0.0, 100.0, False),
+FILTER_BOUNDS: dict[str, tuple[float | None, float, float, bool]] = {
+    "alpha0": (None, 0.0, 100.0, False),  # None: chosen from the measured noise
+    "alpha1": (None, 0.0, 100.0, False),
     "penalty0": (2.0, 0.0, 1000.0, False),
     "penalty1": (2.0, 0.0, 1000.0, False),
     "vertex_iterations": (20, 0, 1000, True),
     "flip_repair_rounds": (5, 0, 100, True),
     "max_iterations": (100, 1, 10000, True),
     "tolerance": (1e-5, 0.0, 1.0, True),
-    "noise_reference_deg": (15.0, 0.0, 180.0, True),
+    "noise_reference_deg": (0.0, 0.0, 180.0, True),
 }
 
 
