@@ -16,8 +16,7 @@ from numba import njit, prange
 
 from cam.mesh._compiled import KERNEL_LOCK
 
-__all__ = ["drop_queries", "surface_queries"]
-
+__all__ = ["bucket_boxes", "drop_queries", "surface_queries"]
 
 
 @njit(cache=True, inline="always")
@@ -174,3 +173,36 @@ def surface_queries(*args) -> None:
     """`_surface_queries` under the kernels' lock (arguments as there)."""
     with KERNEL_LOCK:
         _surface_queries(*args)
+
+
+@njit(cache=True)
+def _bucket_boxes(i0, j0, i1, j1, columns, cells, starts, members):
+    for t in range(i0.size):  # count each cell's boxes
+        for i in range(i0[t], i1[t] + 1):
+            for j in range(j0[t], j1[t] + 1):
+                starts[i * columns + j + 1] += 1
+    for c in range(cells):
+        starts[c + 1] += starts[c]
+    fill = starts[:-1].copy()
+    for t in range(i0.size):  # then list them, in box order within a cell
+        for i in range(i0[t], i1[t] + 1):
+            for j in range(j0[t], j1[t] + 1):
+                c = i * columns + j
+                members[fill[c]] = t
+                fill[c] += 1
+
+
+def bucket_boxes(i0: np.ndarray, j0: np.ndarray, i1: np.ndarray, j1: np.ndarray, shape: tuple[int, int]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The boxes (cell ranges i0..i1 x j0..j1, inclusive, int (m,)) each cell of a grid of `shape` meets.
+
+    Returns (starts, members): int64 (shape[0] shape[1] + 1,) and (Σ box cells,); the boxes of cell
+    c = i shape[1] + j are members[starts[c]:starts[c + 1]], in ascending box order (a counting sort: no
+    sort, no array of every (box, cell) pair beside the result)."""
+    cells = int(shape[0]) * int(shape[1])
+    counts = (i1 - i0 + 1) * (j1 - j0 + 1)
+    starts = np.zeros(cells + 1, dtype=np.int64)
+    members = np.empty(int(counts.sum()), dtype=np.int64)
+    as64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)
+    _bucket_boxes(as64(i0), as64(j0), as64(i1), as64(j1), int(shape[1]), cells, starts, members)
+    return starts, members

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.mesh._dropkernel import drop_queries, surface_queries
+from cam.mesh._dropkernel import bucket_boxes, drop_queries, surface_queries
 
 __all__ = ["DropIndex", "drop_ball", "drop_index", "surface_height"]
 
@@ -109,16 +109,10 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
     shape = tuple(int(x) for x in np.floor((hi.max(axis=0) - origin) / cell).astype(np.int64) + 1)
     i0, j0 = np.floor((lo - origin) / cell).astype(np.int64).T
     i1, j1 = np.floor((hi - origin) / cell).astype(np.int64).T
-    ni, nj = i1 - i0 + 1, j1 - j0 + 1
-    count = ni * nj
-    owner = np.repeat(np.arange(len(tri)), count)
-    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    cells = (np.repeat(i0, count) + k // np.repeat(nj, count)) * shape[1] + np.repeat(j0, count) + k % np.repeat(nj, count)
-    order = np.argsort(cells, kind="stable")
-    starts = np.searchsorted(cells[order], np.arange(shape[0] * shape[1] + 1))
+    starts, members = bucket_boxes(i0, j0, i1, j1, shape)
     return DropIndex(triangles=tri, normals=normals, top=tri[:, :, 2].max(axis=1), lo=box_lo, hi=box_hi,
                      radius_mm=float(radius_mm), origin=origin, cell_mm=cell,
-                     shape=shape, starts=starts.astype(np.int64), members=owner[order].astype(np.int64))
+                     shape=shape, starts=starts, members=members)
 
 
 def drop_ball(index: DropIndex, xy: np.ndarray, *, contact: bool = False

@@ -68,3 +68,19 @@ def test_a_ball_set_at_the_height_clears_the_part():
     fin = np.isfinite(z)
     _, dist, _ = closest_points(mesh_index(part.vertices, part.faces), np.column_stack([q[fin], z[fin]]))[:3]
     assert dist == pytest.approx(1.5, abs=1e-9)
+
+
+def test_buckets_list_every_box_in_every_cell_it_meets_in_box_order():
+    # Against a plain double loop over the boxes: cell c holds exactly the boxes whose ranges contain it.
+    from cam.mesh._dropkernel import bucket_boxes
+
+    rng = np.random.default_rng(3)
+    shape = (7, 5)
+    i0, j0 = rng.integers(0, 7, 60), rng.integers(0, 5, 60)
+    i1, j1 = np.minimum(i0 + rng.integers(0, 3, 60), 6), np.minimum(j0 + rng.integers(0, 4, 60), 4)
+    starts, members = bucket_boxes(i0, j0, i1, j1, shape)
+    for c in range(shape[0] * shape[1]):
+        i, j = divmod(c, shape[1])
+        want = [t for t in range(60) if i0[t] <= i <= i1[t] and j0[t] <= j <= j1[t]]
+        assert members[starts[c]:starts[c + 1]].tolist() == want
+    assert starts[-1] == members.size == int(((i1 - i0 + 1) * (j1 - j0 + 1)).sum())
