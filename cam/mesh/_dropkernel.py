@@ -16,7 +16,7 @@ from numba import njit, prange
 
 from cam.mesh._compiled import KERNEL_LOCK
 
-__all__ = ["bucket_boxes", "drop_queries", "surface_queries"]
+__all__ = ["bucket_boxes", "clear_queries", "drop_queries", "surface_queries"]
 
 
 @njit(cache=True, inline="always")
@@ -147,6 +147,36 @@ def _drop_queries(xy, triangles, normals, top, lo, hi, r, origin, cell, shape, s
             z_out[i] = best[0]
             if np.isfinite(best[0]):
                 p_out[i, 0], p_out[i, 1], p_out[i, 2] = best[1], best[2], best[3]
+
+
+@njit(cache=True, parallel=True)
+def _clear_queries(xy, limit, triangles, normals, top, lo, hi, r, origin, cell, shape, starts, members, clear):
+    """Fill clear (n,) with whether no triangle lifts the ball over each xy (n, 2) above limit (n,): the
+    drop-cutter height is the highest of the triangles' exact contacts, and a triangle whose bound is not
+    above the limit cannot be the one that exceeds it, so `_drop_queries`'s height <= limit without
+    finding the height."""
+    for i in prange(xy.shape[0]):
+        qx, qy, z = xy[i, 0], xy[i, 1], limit[i]
+        first, last = _bucket(qx, qy, origin, cell, shape, starts)
+        cand = np.empty(4)
+        ok = True
+        for k in range(first, last):
+            tri = members[k]
+            gx = max(max(lo[tri, 0] - qx, qx - hi[tri, 0]), 0.0)
+            gy = max(max(lo[tri, 1] - qy, qy - hi[tri, 1]), 0.0)
+            d2 = gx * gx + gy * gy
+            if d2 <= r * r and top[tri] + math.sqrt(r * r - d2) > z:
+                _exact(qx, qy, triangles[tri], normals[tri], r, cand)
+                if cand[0] > z:
+                    ok = False
+                    break
+        clear[i] = ok
+
+
+def clear_queries(*args) -> None:
+    """`_clear_queries` under the kernels' lock (arguments as there)."""
+    with KERNEL_LOCK:
+        _clear_queries(*args)
 
 
 @njit(cache=True, parallel=True)

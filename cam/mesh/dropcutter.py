@@ -20,9 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.mesh._dropkernel import bucket_boxes, drop_queries, surface_queries
+from cam.mesh._dropkernel import (
+    bucket_boxes,
+    clear_queries,
+    drop_queries,
+    surface_queries,
+)
 
-__all__ = ["DropIndex", "drop_ball", "drop_index", "surface_height"]
+__all__ = ["DropIndex", "ball_clears", "drop_ball", "drop_index", "surface_height"]
 
 @dataclass(frozen=True, eq=False)
 class DropIndex:
@@ -144,6 +149,35 @@ def drop_ball(index: DropIndex, xy: np.ndarray, *, contact: bool = False
                  index.origin, index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts,
                  index.members, z, p)
     return (z, p) if contact else z
+
+
+def ball_clears(index: DropIndex, xy: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Whether the ball, its centre at height `limit` over each point, cuts none of the part.
+
+    The answer of ``drop_ball(index, xy) <= limit``, found faster: a query stops at the first triangle that
+    lifts the ball above its limit, and a triangle whose bound (the one `drop_ball` skips triangles by) is
+    not above the limit is never solved.
+
+    Parameters
+    ----------
+    index : DropIndex
+        The part, bucketed for the ball radius (`drop_index`).
+    xy : (n, 2) float
+        Query points, mm, in the index's frame.
+    limit : (n,) float
+        Ball-centre heights, mm.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    q = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    z = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, dtype=np.float64), (len(q),)))
+    clear = np.zeros(len(q), dtype=np.bool_)
+    clear_queries(q, z, index.triangles, index.normals, index.top, index.lo, index.hi, index.radius_mm,
+                  index.origin, index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts,
+                  index.members, clear)
+    return clear
 
 
 def surface_height(index: DropIndex, xy: np.ndarray) -> np.ndarray:

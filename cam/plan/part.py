@@ -13,7 +13,7 @@ import numpy as np
 
 from cam.gcode.setup import Setup
 from cam.mesh.closest import MeshIndex, closest_points, mesh_index, triangle_normals
-from cam.mesh.dropcutter import DropIndex, drop_ball, drop_index
+from cam.mesh.dropcutter import DropIndex, ball_clears, drop_ball, drop_index
 
 __all__ = ["REACH_TOL_MM", "SetupPart", "setup_part"]
 
@@ -93,7 +93,9 @@ class SetupPart:
         centre = np.asarray(points) + (self.radius_mm + REACH_TOL_MM) * np.asarray(normals)
         ok = np.all(np.isfinite(centre), axis=1)
         out = np.zeros(len(centre), dtype=bool)
-        out[ok] = self.drop(centre[ok, :2]) <= centre[ok, 2] + REACH_TOL_MM
+        limit = centre[ok, 2] + REACH_TOL_MM
+        # self.drop(xy) <= limit, without the drop heights: the table, then the part.
+        out[ok] = (self.floor_z + self.radius_mm <= limit) & ball_clears(self.index, centre[ok, :2], limit)
         return out
 
 

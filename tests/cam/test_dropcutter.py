@@ -84,3 +84,19 @@ def test_buckets_list_every_box_in_every_cell_it_meets_in_box_order():
         want = [t for t in range(60) if i0[t] <= i <= i1[t] and j0[t] <= j <= j1[t]]
         assert members[starts[c]:starts[c + 1]].tolist() == want
     assert starts[-1] == members.size == int(((i1 - i0 + 1) * (j1 - j0 + 1)).sum())
+
+
+def test_ball_clears_answers_what_the_drop_height_answers():
+    # A bumpy closed part: random limits around the drop heights, some exactly at them, and points off the part.
+    from cam.mesh.dropcutter import ball_clears
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    rng = np.random.default_rng(12)
+    vertices = mesh.vertices * (1 + 0.1 * rng.random((len(mesh.vertices), 1)))
+    index = drop_index(vertices, mesh.faces, radius_mm=2.0)
+    xy = rng.uniform(-14, 14, (4000, 2))
+    height = drop_ball(index, xy)
+    limit = np.where(np.isfinite(height), height, 0.0) + rng.choice([-0.5, -1e-9, 0.0, 1e-9, 0.5], size=4000)
+    clear = ball_clears(index, xy, limit)
+    np.testing.assert_array_equal(clear, height <= limit)
+    assert 0.2 < clear.mean() < 0.8
