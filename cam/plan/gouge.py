@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cam.spline._compiled import project_in_boxes
 from cam.spline.geometry import Patch
 from cam.spline.pieces import c0_pieces, foot_in_pieces, make_piece_boxes
 from cam.spline.surface import BSplineSurface
@@ -140,41 +141,9 @@ def _pieces(base: BSplineSurface, u0: float, u1: float, v0: float, v1: float):
 def _project_box(s, x: np.ndarray, uv: np.ndarray, lo: np.ndarray, hi: np.ndarray, iterations: int = 12
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Projected Newton for the foot point of x (n, 3) on surface s from uv (n, 2), inside the boxes
-    lo..hi (n, 2): (uv, foot). A row stops once its step is below 1e-13; the rest iterate alone."""
-    uv = np.clip(uv, lo, hi)
-    active = np.arange(len(uv))
-    for _ in range(iterations):
-        if not active.size:
-            break
-        u, v, xa, la, ha = uv[active, 0], uv[active, 1], x[active], lo[active], hi[active]
-        p, su, sv = s.evaluate(u, v), s.evaluate(u, v, du=1), s.evaluate(u, v, dv=1)
-        suu, suv, svv = s.evaluate(u, v, du=2), s.evaluate(u, v, du=1, dv=1), s.evaluate(u, v, dv=2)
-        d = p - xa
-        g = np.stack([np.einsum("ij,ij->i", su, d), np.einsum("ij,ij->i", sv, d)], -1)
-        a = np.einsum("ij,ij->i", su, su) + np.einsum("ij,ij->i", suu, d)
-        b = np.einsum("ij,ij->i", su, sv) + np.einsum("ij,ij->i", suv, d)
-        c = np.einsum("ij,ij->i", sv, sv) + np.einsum("ij,ij->i", svv, d)
-        det = a * c - b * b
-        bad = (det <= 1e-12 * (a * a + c * c + 1e-300)) | (a <= 0)
-        # Where the full Hessian is not positive, fall back to Gauss–Newton (first derivatives only).
-        a = np.where(bad, np.einsum("ij,ij->i", su, su), a)
-        b = np.where(bad, np.einsum("ij,ij->i", su, sv), b)
-        c = np.where(bad, np.einsum("ij,ij->i", sv, sv), c)
-        det = np.maximum(a * c - b * b, 1e-300)
-        step = -np.stack([c * g[:, 0] - b * g[:, 1], a * g[:, 1] - b * g[:, 0]], -1) / det[:, None]
-        # A coordinate pinned at its bound with the gradient pushing out stays there (projected Newton).
-        here = uv[active]
-        pinned = ((here <= la) & (g > 0)) | ((here >= ha) & (g < 0))
-        step = np.where(pinned, 0.0, step)
-        one = pinned.any(axis=1)
-        if np.any(one):  # 1-D Newton along the free coordinate
-            free_u = ~pinned[:, 0]
-            step[one] = np.where(free_u[one, None],
-                                 np.stack([-g[one, 0] / np.maximum(a[one], 1e-300), np.zeros(one.sum())], -1),
-                                 np.stack([np.zeros(one.sum()), -g[one, 1] / np.maximum(c[one], 1e-300)], -1))
-            step[pinned] = 0.0
-        uv[active] = np.clip(here + step, la, ha)
-        active = active[np.max(np.abs(step), axis=1) >= 1e-13]
+    lo..hi (n, 2): (uv, foot). Compiled (`cam.spline._compiled.project_in_boxes`), point by point."""
+    base = getattr(s, "base", s)
+    uv = project_in_boxes(base.knots_u, base.knots_v, base.control_points, x, uv, lo, hi, base.degree, iterations)
     return uv, s.evaluate(uv[:, 0], uv[:, 1])
 
 

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["evaluate_net", "newton_feet"]
+__all__ = ["evaluate_net", "newton_feet", "project_in_boxes"]
 
 
 @njit(cache=True, inline="always")
@@ -286,3 +286,90 @@ def newton_feet(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.nda
                  as64(u).ravel(), as64(v).ravel(), as64(lo).reshape(n, 2), as64(hi).reshape(n, 2),
                  int(iterations), fu, fv, fd)
     return fu, fv, fd
+
+
+@njit(cache=True)
+def _project_one(ku, kv, cp, p, q, x, y, z, u, v, lo_u, lo_v, hi_u, hi_v, iterations, out, work, result):
+    """Projected Newton for the foot of one point inside its box: `cam.plan.gouge`'s iteration, point by point."""
+    u = min(max(u, lo_u), hi_u)
+    v = min(max(v, lo_v), hi_v)
+    for _ in range(iterations):
+        _evaluate(ku, kv, cp, p, q, u, v, 2, out, work)
+        d0, d1, d2 = out[0, 0] - x, out[0, 1] - y, out[0, 2] - z
+        su0, su1, su2 = out[1, 0], out[1, 1], out[1, 2]
+        sv0, sv1, sv2 = out[2, 0], out[2, 1], out[2, 2]
+        g0 = _dot(su0, su1, su2, d0, d1, d2)
+        g1 = _dot(sv0, sv1, sv2, d0, d1, d2)
+        juu = _dot(su0, su1, su2, su0, su1, su2)
+        juv = _dot(su0, su1, su2, sv0, sv1, sv2)
+        jvv = _dot(sv0, sv1, sv2, sv0, sv1, sv2)
+        a = juu + _dot(out[3, 0], out[3, 1], out[3, 2], d0, d1, d2)
+        b = juv + _dot(out[4, 0], out[4, 1], out[4, 2], d0, d1, d2)
+        c = jvv + _dot(out[5, 0], out[5, 1], out[5, 2], d0, d1, d2)
+        if a * c - b * b <= 1e-12 * (a * a + c * c + 1e-300) or a <= 0:
+            a, b, c = juu, juv, jvv  # not positive definite: Gauss–Newton
+        det = max(a * c - b * b, 1e-300)
+        step_u = -(c * g0 - b * g1) / det
+        step_v = -(a * g1 - b * g0) / det
+        # A coordinate on its bound with the gradient pushing out stays there; the other takes a 1-D step.
+        pin_u = (u <= lo_u and g0 > 0) or (u >= hi_u and g0 < 0)
+        pin_v = (v <= lo_v and g1 > 0) or (v >= hi_v and g1 < 0)
+        if pin_u or pin_v:
+            step_u = 0.0 if pin_u else -g0 / max(a, 1e-300)
+            step_v = 0.0 if pin_v or not pin_u else -g1 / max(c, 1e-300)
+        u = min(max(u + step_u, lo_u), hi_u)
+        v = min(max(v + step_v, lo_v), hi_v)
+        if max(abs(step_u), abs(step_v)) < 1e-13:
+            break
+    result[0], result[1] = u, v
+
+
+@njit(cache=True, nogil=True)
+def _project_in_boxes(ku, kv, cp, p, q, points, uv, lo, hi, iterations, found):
+    work = _work(p, q)
+    out = np.zeros((6, 3))
+    result = np.zeros(2)
+    for i in range(points.shape[0]):
+        _project_one(ku, kv, cp, p, q, points[i, 0], points[i, 1], points[i, 2], uv[i, 0], uv[i, 1], lo[i, 0],
+                     lo[i, 1], hi[i, 0], hi[i, 1], iterations, out, work, result)
+        found[i, 0], found[i, 1] = result[0], result[1]
+
+
+def project_in_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, points: np.ndarray,
+                     uv: np.ndarray, lo: np.ndarray, hi: np.ndarray, degree: tuple[int, int], iterations: int
+                     ) -> np.ndarray:
+    """Projected-Newton feet of `points` on a B-spline surface, each inside its parameter box.
+
+    Each step solves with the Hessian of |S - x|² (Gauss–Newton where it is not positive definite); a
+    parameter on its bound whose gradient points out of the box is held there while the other takes a
+    one-dimensional Newton step; a point stops once its step is below 1e-13.
+
+    Parameters
+    ----------
+    knots_u, knots_v : ndarray, shape (nu + p + 1,), (nv + q + 1,), float64
+        Clamped knot vectors, parameter units.
+    control_points : ndarray, shape (nu, nv, 3), float64
+        The control net, mm.
+    points : ndarray, shape (n, 3), float64
+        Points, mm.
+    uv : ndarray, shape (n, 2), float64
+        Starts, parameter units.
+    lo, hi : ndarray, shape (n, 2), float64
+        Each point's parameter box.
+    degree : tuple of int
+        (p, q), each at least 1.
+    iterations : int
+        Newton steps at most.
+
+    Returns
+    -------
+    ndarray, shape (n, 2), float64
+        The feet's parameters.
+    """
+    n = len(points)
+    found = np.empty((n, 2))
+    as64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    _project_in_boxes(as64(knots_u), as64(knots_v), as64(control_points), int(degree[0]), int(degree[1]),
+                      as64(points).reshape(n, 3), as64(uv).reshape(n, 2), as64(lo).reshape(n, 2),
+                      as64(hi).reshape(n, 2), int(iterations), found)
+    return found
