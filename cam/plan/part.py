@@ -51,6 +51,13 @@ class SetupPart:
         """Lowest ball-centre height over each point (n, 2) that cuts neither the part nor the table: (n,) mm."""
         return np.maximum(drop_ball(self.index, xy), self.floor_z + self.radius_mm)
 
+    def clears(self, xy: np.ndarray, z: np.ndarray | float) -> np.ndarray:
+        """bool (n,): ``self.drop(xy) <= z``, the ball centred at height z (n,) over each point (n, 2) cutting
+        neither the table nor the part, answered without the drop heights (`ball_clears`)."""
+        q = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        limit = np.broadcast_to(np.asarray(z, dtype=np.float64), (len(q),))
+        return (self.floor_z + self.radius_mm <= limit) & ball_clears(self.index, q, limit)
+
     def contact(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Drop-cutter heights (n,) and the z of the part's normal where the ball touches it (NaN where the
         ball rests on the table rather than on the part)."""
@@ -81,7 +88,7 @@ class SetupPart:
         spacing = float(np.sqrt(8.0 * self.radius_mm * tol_mm))
         n = max(int(np.ceil(float(np.linalg.norm(b - a)) / spacing)), 1)
         c = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
-        return bool(np.all(self.drop(c[:, :2]) <= c[:, 2] + tol_mm))
+        return bool(np.all(self.clears(c[:, :2], c[:, 2] + tol_mm)))
 
     def wall_normals(self, centres: np.ndarray) -> np.ndarray:
         """Unit normals (n, 3) of the part where it is nearest to each ball centre (n, 3)."""
@@ -93,9 +100,7 @@ class SetupPart:
         centre = np.asarray(points) + (self.radius_mm + REACH_TOL_MM) * np.asarray(normals)
         ok = np.all(np.isfinite(centre), axis=1)
         out = np.zeros(len(centre), dtype=bool)
-        limit = centre[ok, 2] + REACH_TOL_MM
-        # self.drop(xy) <= limit, without the drop heights: the table, then the part.
-        out[ok] = (self.floor_z + self.radius_mm <= limit) & ball_clears(self.index, centre[ok, :2], limit)
+        out[ok] = self.clears(centre[ok, :2], centre[ok, 2] + REACH_TOL_MM)
         return out
 
 

@@ -74,12 +74,11 @@ def _grid(part: SetupPart, bounds, spacing: float) -> _Grid:
 def _on_level(part: SetupPart, a: np.ndarray, b: np.ndarray, level: float, rounds: int = BISECT_ROUNDS) -> np.ndarray:
     """Bisect between xy points a (k, 2) and b (k, 2) whose drop-cutter heights bracket `level`; returns the
     end on the side where the ball at `level` clears the part (drop ≤ level)."""
-    za = part.drop(a)
-    out_a = ~(za > level)  # a is outside (clear) where its drop is not above the level
+    out_a = part.clears(a, level)  # a is outside (clear) where its drop is not above the level
     lo, hi = np.where(out_a[:, None], a, b), np.where(out_a[:, None], b, a)  # lo: clear, hi: inside
     for _ in range(rounds):
         mid = 0.5 * (lo + hi)
-        inside = part.drop(mid) > level
+        inside = ~part.clears(mid, level)
         lo = np.where(inside[:, None], lo, mid)
         hi = np.where(inside[:, None], mid, hi)
     return lo
@@ -112,7 +111,7 @@ def _push_out(part: SetupPart, xy: np.ndarray, level: float, lift_mm: float) -> 
     length = np.linalg.norm(away, axis=1, keepdims=True)
     pushed = xy + lift_mm * np.where(length > 1e-6, away / np.maximum(length, 1e-300), 0.0)
     # In a tight inner corner the push from one wall can bring the ball to the other: keep the point there.
-    clear = part.drop(pushed) <= level + GOUGE_TOL_MM
+    clear = part.clears(pushed, level + GOUGE_TOL_MM)
     return np.where(clear[:, None], pushed, xy)
 
 
@@ -132,17 +131,17 @@ def _follow_walls(part: SetupPart, runs: list[np.ndarray], level: float, *, chor
         b = np.concatenate([r[1:] for r in runs if len(r) > 1])
         mid, d = 0.5 * (a + b), b - a
         across = np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)[:, None]
-        zm = part.drop(mid)
-        zp, zn = part.drop(mid + spacing * across), part.drop(mid - spacing * across)
+        # Which of the middle and the points a spacing to either side the ball at the level would cut.
+        inside_mid = ~part.clears(mid, level)
+        inside_p, inside_n = ~part.clears(mid + spacing * across, level), ~part.clears(mid - spacing * across, level)
         # The true contour near the middle: between the middle and the side whose height is across the level.
-        inside_mid = zm > level
-        side = np.where((zp > level) != inside_mid, 1.0, np.where((zn > level) != inside_mid, -1.0, 0.0))
+        side = np.where(inside_p != inside_mid, 1.0, np.where(inside_n != inside_mid, -1.0, 0.0))
         ok = side != 0
         true = mid.copy()
         if ok.any():
             true[ok] = _on_level(part, mid[ok], mid[ok] + side[ok, None] * spacing * across[ok], level)
         off = np.linalg.norm(true - mid, axis=1)
-        bad = ok & ((off > chord_mm) | (zm > level + GOUGE_TOL_MM))
+        bad = ok & ((off > chord_mm) | ~part.clears(mid, level + GOUGE_TOL_MM))
         worst = max(lift_mm, float(np.max(np.where(ok, off, 0.0), initial=0.0)))
         if not bad.any() or depth == max_depth:
             return runs, worst
