@@ -28,6 +28,11 @@ __all__ = ["QuadriflowFailed", "QuadriflowRuns", "run_quadriflow"]
 _CHECK_EVERY_S = 0.25
 # The child's own alarm, s beyond the parent's limit: it ends the child should the parent die without killing it.
 _CHILD_GRACE_S = 30.0
+# Once a run on a mesh has ended, a later run on it that takes this many times as long is taken to hang (QuadriFlow
+# loops forever on rare inputs; its time for one mesh and target varies by a factor of about two between seeds and
+# two children sharing two cores), but never before _HANG_FLOOR_S.
+_HANG_FACTOR = 4.0
+_HANG_FLOOR_S = 30.0
 
 
 class QuadriflowFailed(RuntimeError):
@@ -101,6 +106,10 @@ class QuadriflowRuns:
     `time.monotonic`, or raises its `QuadriflowFailed`. `close()` kills what still runs. A run's result
     does not depend on what runs beside it: QuadriFlow is deterministic for a mesh, a target and a seed.
 
+    A run's limit is `timeout_s`, or, once some run on the mesh has ended on its own in t seconds, the
+    smaller of that and max(30 s, 4 t): a run that takes four times as long as one that ended hangs, and
+    waiting the full limit for it made a 3,000-point example wait five minutes.
+
     Parameters
     ----------
     vertices, triangles
@@ -119,6 +128,12 @@ class QuadriflowRuns:
         self._timeout_s = float(timeout_s)
         self._processes = max(1, int(processes))
         self._running: dict[tuple[int, int], tuple[subprocess.Popen, threading.Thread, dict, float]] = {}
+        self._quickest_s: float | None = None  # the shortest run that ended on its own
+
+    def _limit_s(self) -> float:
+        if self._quickest_s is None:
+            return self._timeout_s
+        return min(self._timeout_s, max(_HANG_FLOOR_S, _HANG_FACTOR * self._quickest_s))
 
     def plan(self, keys: list[tuple[int, int]]) -> None:
         """Keep the runs of `keys` only, and start the first of them while fewer than `processes` run."""
@@ -138,18 +153,21 @@ class QuadriflowRuns:
         proc, talker, out, started = self._running[key]
         try:
             while talker.is_alive():
-                deadline = started + self._timeout_s
-                talker.join(max(0.0, min(_CHECK_EVERY_S, deadline - time.monotonic())))
+                limit = self._limit_s()
+                talker.join(max(0.0, min(_CHECK_EVERY_S, started + limit - time.monotonic())))
                 if not talker.is_alive():
                     break
-                if time.monotonic() > deadline:
-                    raise QuadriflowFailed(f"timed out after {self._timeout_s:.0f} s")
+                if time.monotonic() > started + limit:
+                    quick = "" if limit == self._timeout_s else f", {_HANG_FACTOR:g} times the quickest run's"
+                    raise QuadriflowFailed(f"timed out after {limit:.0f} s{quick}")
                 if check_cancel is not None:
                     check_cancel()
         finally:
             self._stop(key)
+        seconds = out["ended"] - started
+        self._quickest_s = seconds if self._quickest_s is None else min(self._quickest_s, seconds)
         vertices, faces = _decode_result(proc.returncode, out.get("out", b""), out.get("err", b""))
-        return vertices, faces, time.monotonic() - started, started
+        return vertices, faces, seconds, started
 
     def close(self) -> None:
         """Kill every child still running."""
@@ -161,11 +179,12 @@ class QuadriflowRuns:
         request = _encode_request(*self._mesh, target_faces=target, seed=seed, timeout_s=self._timeout_s,
                                   **self._switches)
         proc = _start_child()
-        out: dict[str, bytes] = {}
+        out: dict = {}
 
         def talk() -> None:
             # communicate() in a thread: polling communicate(timeout=...) cannot resume sending stdin.
             out["out"], out["err"] = proc.communicate(input=request)
+            out["ended"] = time.monotonic()
 
         talker = threading.Thread(target=talk, daemon=True)
         talker.start()

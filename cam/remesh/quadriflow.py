@@ -25,7 +25,7 @@ from cam import CheckCancel, GeometryError, Progress
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
-from cam.remesh.process import QuadriflowFailed, QuadriflowRuns, run_quadriflow
+from cam.remesh.process import QuadriflowFailed, QuadriflowRuns
 
 __all__ = ["RemeshFailed", "RemeshResult", "boundary_loop_count", "remesh_quads"]
 
@@ -134,7 +134,8 @@ def remesh_quads(
           of the input is kept (the nearer one, by Hausdorff distance, on a tie).
           The report lists them under ``"candidates"`` (seed, QuadriFlow's target, faces,
           missed crease length, Hausdorff distance).
-        - ``timeout_s``: limit of one run, seconds.
+        - ``timeout_s``: limit of one run, seconds; once a run has ended in t seconds, later runs that
+          take over max(30 s, 4 t) are taken to hang and stopped (see `cam.remesh.process.QuadriflowRuns`).
         - ``preserve_sharp``: align quads with sharp features (QuadriFlow's ``-sharp``).
         - ``min_cost_flow``: QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).
         - ``max_hausdorff_ratio``: largest accepted two-sided Hausdorff distance as a
@@ -142,7 +143,7 @@ def remesh_quads(
     progress
         ``progress(fraction, message)`` before each run and before its checks.
     check_cancel
-        Called about four times a second while QuadriFlow runs (see :func:`cam.remesh.process.run_quadriflow`);
+        Called about four times a second while QuadriFlow runs (see :class:`cam.remesh.process.QuadriflowRuns`);
         what it raises kills the child and propagates.
     crease_angle_deg
         Creases (normals over this many degrees apart) of the kept layout's report: ``crease_recall`` (the
@@ -220,18 +221,17 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
     """Run QuadriFlow until ``params.candidates`` results passed or the attempts are spent.
 
     With ``processes`` > 1 the runs that would follow if this one passed run beside it (`QuadriflowRuns`);
-    which runs are made, and their results, are those of the serial loop.
+    which runs are made, and their results, are those of one run at a time (unless a run's time falls
+    between the hang limits the two measure: see `QuadriflowRuns`).
 
     Returns the results that passed, a sentence per failed run, and how many runs were made.
     """
     failures: list[str] = []
     accepted: list[RemeshResult] = []
     runs = 0
-    pool = None
-    if processes > 1:
-        pool = QuadriflowRuns(mesh.vertices, mesh.triangles, preserve_sharp=params.preserve_sharp,
-                              preserve_boundary=mesh.boundary_loops > 0, min_cost_flow=params.min_cost_flow,
-                              timeout_s=params.timeout_s, processes=processes)
+    pool = QuadriflowRuns(mesh.vertices, mesh.triangles, preserve_sharp=params.preserve_sharp,
+                          preserve_boundary=mesh.boundary_loops > 0, min_cost_flow=params.min_cost_flow,
+                          timeout_s=params.timeout_s, processes=processes)
 
     def upcoming(first: int, wanted: int) -> list[tuple[int, int]]:
         # (target, seed) of the plain attempts from `first` on, while `wanted` more may pass, as now predicted.
@@ -252,8 +252,7 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
                 progress(attempt / (params.attempts + 1), f"QuadriFlow, seed {seed}")
             following = [] if split else upcoming(attempt + 1, params.candidates - len(accepted) - 1)
             try:
-                raw_v, raw_f, quadriflow_s, started = _quadriflow(mesh, params, pool, (target, seed), following,
-                                                                  check_cancel)
+                raw_v, raw_f, quadriflow_s, started = _quadriflow(pool, (target, seed), following, check_cancel)
                 if progress is not None:
                     progress((attempt + 0.8) / (params.attempts + 1), "checking the quads")
                 out_v, out_f, facts = accept_quads(raw_v, raw_f, mesh.vertices, mesh.triangles,
@@ -268,25 +267,14 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
             if len(accepted) >= params.candidates:
                 break
     finally:
-        if pool is not None:
-            pool.close()
+        pool.close()
     return accepted, failures, runs
 
 
-def _quadriflow(mesh: _Input, params: RemeshParams, pool: QuadriflowRuns | None, key: tuple[int, int],
-                following: list[tuple[int, int]], check_cancel: CheckCancel | None
-                ) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The run of key (target, seed): vertices, faces, seconds and start on `time.monotonic`; with a pool,
-    the `following` runs (those wanted should this one pass) run beside it. QuadriflowFailed as raised."""
-    target, seed = key
-    if pool is None:
-        started = time.monotonic()
-        # Looked up in this module at each run, so that a test can stand in for QuadriFlow here.
-        raw_v, raw_f = run_quadriflow(mesh.vertices, mesh.triangles, target_faces=target, seed=seed,
-                                      preserve_sharp=params.preserve_sharp, preserve_boundary=mesh.boundary_loops > 0,
-                                      min_cost_flow=params.min_cost_flow, timeout_s=params.timeout_s,
-                                      check_cancel=check_cancel)
-        return raw_v, raw_f, time.monotonic() - started, started
+def _quadriflow(pool: QuadriflowRuns, key: tuple[int, int], following: list[tuple[int, int]],
+                check_cancel: CheckCancel | None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The run of key (target, seed): vertices, faces, seconds and start on `time.monotonic`; the `following`
+    runs (those wanted should this one pass) run beside it while the pool has room. QuadriflowFailed as raised."""
     pool.plan([key, *following])
     result = pool.result(key, check_cancel=check_cancel)
     pool.plan(following)  # while this result is checked

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import io
+import re
+import time
 
 import numpy as np
 import pytest
@@ -14,16 +16,16 @@ from cam.io.quads import read_quad_obj
 from cam.mesh.quads import face_areas, face_normals
 from cam.params import RemeshParams
 from cam.remesh.check import inspect_quad_mesh
-from tests.conftest import SHARED_DATA
+from tests.conftest import ROOT, SHARED_DATA
 
 pytest.importorskip("pyQuadriFlow")
 
+from cam.remesh.process import run_quadriflow
 from cam.remesh.quadriflow import (
     QuadriflowFailed,
     RemeshFailed,
     boundary_loop_count,
     remesh_quads,
-    run_quadriflow,
 )
 from core.params import JobParams
 
@@ -77,25 +79,44 @@ def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
     assert issubclass(RemeshFailed, GeometryError)  # the runner shows its message to the user
 
 
+def _hang_on(monkeypatch, seeds):
+    """QuadriFlow children whose request carries one of `seeds` sleep instead of running (a hang)."""
+    import subprocess
+    import sys
+
+    from cam.remesh import process
+
+    script = ("import io, runpy, sys, time\n"
+              "import numpy as np\n"
+              "data = sys.stdin.buffer.read()\n"
+              f"if int(np.load(io.BytesIO(data))['seed']) in {sorted(seeds)}:\n"
+              "    time.sleep(600)\n"
+              "sys.stdin = io.TextIOWrapper(io.BytesIO(data))\n"
+              "runpy.run_module('cam.remesh.child', run_name='__main__')\n")
+
+    def child():
+        return subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, cwd=str(ROOT))
+
+    monkeypatch.setattr(process, "_start_child", child)
+    monkeypatch.setattr(process, "_HANG_FLOOR_S", 0.5)
+
+
 def test_the_report_counts_every_run_and_the_failed_ones(monkeypatch):
-    # Runs that fail after one passed are runs too: attempts counts them, failed_attempts names them.
-    import cam.remesh.quadriflow as remesh
-
-    real = remesh.run_quadriflow
-
-    def flaky(vertices, triangles, *, seed, **kw):
-        if seed > 0:
-            raise QuadriflowFailed("timed out after 0 s")
-        return real(vertices, triangles, seed=seed, **kw)
-
-    monkeypatch.setattr(remesh, "run_quadriflow", flaky)
+    # Runs that fail after one passed are runs too: attempts counts them, failed_attempts names them. A run
+    # that takes four times as long as one that ended hangs: it is stopped long before the 120 s limit.
+    _hang_on(monkeypatch, {1, 2})
     mesh = _box_triangles()
+    started = time.monotonic()
     result = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=300, seed=0, attempts=3, timeout_s=120))
+    assert time.monotonic() - started < 60
     assert result.report["seed"] == 0 and [c["seed"] for c in result.report["candidates"]] == [0]
     assert result.report["attempts"] == 3
     # The first failure ran at the target; the run after it at a nudged count.
-    assert result.report["failed_attempts"] == ["seed 1, 300 faces: timed out after 0 s",
-                                                "seed 2, 312 faces: timed out after 0 s"]
+    failed = result.report["failed_attempts"]
+    assert len(failed) == 2
+    assert re.fullmatch(r"seed 1, 300 faces: timed out after \d+ s, 4 times the quickest run's", failed[0])
+    assert re.fullmatch(r"seed 2, 312 faces: timed out after \d+ s, 4 times the quickest run's", failed[1])
 
 
 def _box_with_a_corner_cut_off():
@@ -281,7 +302,7 @@ def test_the_child_does_not_outlive_a_killed_parent(tmp_path):
     script = tmp_path / "parent.py"
     script.write_text(
         "import trimesh\n"
-        "from cam.remesh.quadriflow import run_quadriflow\n"
+        "from cam.remesh import run_quadriflow\n"
         "m = trimesh.creation.icosphere(5)\n"
         "run_quadriflow(m.vertices, m.faces, target_faces=400000, seed=0, timeout_s=600)\n"
     )
