@@ -15,30 +15,16 @@ vectorised function.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
-from cam.mesh._compiled import KERNEL_LOCK
+from cam.mesh._compiled import KERNEL_LOCK, dot3, norm3
 
 __all__ = ["closest_queries", "make_tree"]
 
 _BLOCK = 1024  # queries per parallel task
 _LEAF = 4  # pieces per leaf at most
 _STACK = 128  # deeper than any tree of median splits over 2^63 pieces
-
-
-@njit(cache=True, inline="always")
-def _dot(x0, x1, x2, y0, y1, y2):
-    """x · y as numpy's einsum("ij,ij->i") sums three products: (x0 y0 + x2 y2) + x1 y1."""
-    return (x0 * y0 + x2 * y2) + x1 * y1
-
-
-@njit(cache=True, inline="always")
-def _norm(x0, x1, x2):
-    """|x| as np.linalg.norm(axis=1) computes it: the square root of (x0² + x1²) + x2²."""
-    return math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
 
 
 @njit(cache=True, inline="always")
@@ -54,10 +40,10 @@ def _on_edges(px, py, pz, t, out):
         e = (k + 1) % 3
         sx, sy, sz = t[k, 0], t[k, 1], t[k, 2]
         ex, ey, ez = t[e, 0] - sx, t[e, 1] - sy, t[e, 2] - sz
-        s = _ratio(_dot(px - sx, py - sy, pz - sz, ex, ey, ez), _dot(ex, ey, ez, ex, ey, ez))
+        s = _ratio(dot3(px - sx, py - sy, pz - sz, ex, ey, ez), dot3(ex, ey, ez, ex, ey, ez))
         s = min(max(s, 0.0), 1.0)
         qx, qy, qz = sx + s * ex, sy + s * ey, sz + s * ez
-        d = _norm(qx - px, qy - py, qz - pz)
+        d = norm3(qx - px, qy - py, qz - pz)
         if d < best:
             best = d
             out[0], out[1], out[2] = qx, qy, qz
@@ -72,14 +58,14 @@ def _on_triangle(px, py, pz, t, out):
     abx, aby, abz = t[1, 0] - ax, t[1, 1] - ay, t[1, 2] - az
     acx, acy, acz = t[2, 0] - ax, t[2, 1] - ay, t[2, 2] - az
     apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = _dot(abx, aby, abz, apx, apy, apz)
-    d2 = _dot(acx, acy, acz, apx, apy, apz)
+    d1 = dot3(abx, aby, abz, apx, apy, apz)
+    d2 = dot3(acx, acy, acz, apx, apy, apz)
     bpx, bpy, bpz = px - t[1, 0], py - t[1, 1], pz - t[1, 2]
-    d3 = _dot(abx, aby, abz, bpx, bpy, bpz)
-    d4 = _dot(acx, acy, acz, bpx, bpy, bpz)
+    d3 = dot3(abx, aby, abz, bpx, bpy, bpz)
+    d4 = dot3(acx, acy, acz, bpx, bpy, bpz)
     cpx, cpy, cpz = px - t[2, 0], py - t[2, 1], pz - t[2, 2]
-    d5 = _dot(abx, aby, abz, cpx, cpy, cpz)
-    d6 = _dot(acx, acy, acz, cpx, cpy, cpz)
+    d5 = dot3(abx, aby, abz, cpx, cpy, cpz)
+    d6 = dot3(acx, acy, acz, cpx, cpy, cpz)
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
@@ -100,7 +86,7 @@ def _on_triangle(px, py, pz, t, out):
         total = va + vb + vc
         bv, bw = _ratio(vb, total), _ratio(vc, total)
     nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
-    if _norm(nx, ny, nz) == 0:
+    if norm3(nx, ny, nz) == 0:
         _on_edges(px, py, pz, t, out)
         return
     out[0] = (ax + bv * abx) + bw * acx
@@ -122,9 +108,9 @@ def _test(piece, px, py, pz, corners, piece_bary, piece_face, face_centroids, ti
     """Piece against the best so far; held = (x, y, z, distance, face, b0, b1, b2), state = (best distance, the
     held one's centroid distance, the held piece)."""
     _on_triangle(px, py, pz, corners[piece], out)
-    d = _norm(out[0] - px, out[1] - py, out[2] - pz)
+    d = norm3(out[0] - px, out[1] - py, out[2] - pz)
     face = piece_face[piece]
-    centre = _norm(face_centroids[face, 0] - px, face_centroids[face, 1] - py, face_centroids[face, 2] - pz)
+    centre = norm3(face_centroids[face, 0] - px, face_centroids[face, 1] - py, face_centroids[face, 2] - pz)
     if d < held[3] - tie or (d <= held[3] + tie and (centre < state[1] or (centre == state[1] and (
             face < held[4] or (face == held[4] and piece < state[2]))))):
         m = piece_bary[piece]

@@ -15,19 +15,9 @@ import math
 import numpy as np
 from numba import njit
 
+from cam.mesh._compiled import dot3, norm3
+
 __all__ = ["evaluate_net", "newton_feet", "project_in_boxes"]
-
-
-@njit(cache=True, inline="always")
-def _dot(x0, x1, x2, y0, y1, y2):
-    """x · y as numpy's einsum("ij,ij->i") sums three products: (x0 y0 + x2 y2) + x1 y1."""
-    return (x0 * y0 + x2 * y2) + x1 * y1
-
-
-@njit(cache=True, inline="always")
-def _norm(x0, x1, x2):
-    """|x| as np.linalg.norm(axis=1) computes it: the square root of (x0² + x1²) + x2²."""
-    return math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
 
 
 @njit(cache=True)
@@ -173,7 +163,7 @@ def evaluate_net(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.nd
 @njit(cache=True)
 def _distance(ku, kv, cp, p, q, u, v, x, y, z, out, work):
     _evaluate(ku, kv, cp, p, q, u, v, 0, out, work)
-    return _norm(out[0, 0] - x, out[0, 1] - y, out[0, 2] - z)
+    return norm3(out[0, 0] - x, out[0, 1] - y, out[0, 2] - z)
 
 
 @njit(cache=True)
@@ -187,8 +177,8 @@ def _newton_one(ku, kv, cp, p, q, x, y, z, u, v, lo_u, lo_v, hi_u, hi_v, iterati
         r0, r1, r2 = out[0, 0] - x, out[0, 1] - y, out[0, 2] - z
         su0, su1, su2 = out[1, 0], out[1, 1], out[1, 2]
         sv0, sv1, sv2 = out[2, 0], out[2, 1], out[2, 2]
-        g0 = _dot(r0, r1, r2, su0, su1, su2)
-        g1 = _dot(r0, r1, r2, sv0, sv1, sv2)
+        g0 = dot3(r0, r1, r2, su0, su1, su2)
+        g1 = dot3(r0, r1, r2, sv0, sv1, sv2)
         held_u = (u <= lo_u and g0 > 0) or (u >= hi_u and g0 < 0)
         held_v = (v <= lo_v and g1 > 0) or (v >= hi_v and g1 < 0)
         if held_u:
@@ -196,12 +186,12 @@ def _newton_one(ku, kv, cp, p, q, x, y, z, u, v, lo_u, lo_v, hi_u, hi_v, iterati
         if held_v:
             g1 = 0.0
         free = not (held_u or held_v)
-        juu = _dot(su0, su1, su2, su0, su1, su2)
-        juv = _dot(su0, su1, su2, sv0, sv1, sv2)
-        jvv = _dot(sv0, sv1, sv2, sv0, sv1, sv2)
-        huu = 1.0 if held_u else juu + _dot(r0, r1, r2, out[3, 0], out[3, 1], out[3, 2])
-        huv = juv + _dot(r0, r1, r2, out[4, 0], out[4, 1], out[4, 2]) if free else 0.0
-        hvv = 1.0 if held_v else jvv + _dot(r0, r1, r2, out[5, 0], out[5, 1], out[5, 2])
+        juu = dot3(su0, su1, su2, su0, su1, su2)
+        juv = dot3(su0, su1, su2, sv0, sv1, sv2)
+        jvv = dot3(sv0, sv1, sv2, sv0, sv1, sv2)
+        huu = 1.0 if held_u else juu + dot3(r0, r1, r2, out[3, 0], out[3, 1], out[3, 2])
+        huv = juv + dot3(r0, r1, r2, out[4, 0], out[4, 1], out[4, 2]) if free else 0.0
+        hvv = 1.0 if held_v else jvv + dot3(r0, r1, r2, out[5, 0], out[5, 1], out[5, 2])
         det = huu * hvv - huv * huv
         if det <= 1e-12 * (huu * hvv + 1e-300) or huu <= 0 or hvv <= 0:
             # Not positive definite: Gauss–Newton (J^T J) where the parameter is free.
@@ -216,7 +206,7 @@ def _newton_one(ku, kv, cp, p, q, x, y, z, u, v, lo_u, lo_v, hi_u, hi_v, iterati
             det = 1e-300
         step_u = -(hvv * g0 - huv * g1) / det
         step_v = -(huu * g1 - huv * g0) / det
-        current = _norm(r0, r1, r2)
+        current = norm3(r0, r1, r2)
         new_u, new_v, new_d = u, v, current
         if abs(step_u) + abs(step_v) > 1e-13:
             scale = 1.0
@@ -298,14 +288,14 @@ def _project_one(ku, kv, cp, p, q, x, y, z, u, v, lo_u, lo_v, hi_u, hi_v, iterat
         d0, d1, d2 = out[0, 0] - x, out[0, 1] - y, out[0, 2] - z
         su0, su1, su2 = out[1, 0], out[1, 1], out[1, 2]
         sv0, sv1, sv2 = out[2, 0], out[2, 1], out[2, 2]
-        g0 = _dot(su0, su1, su2, d0, d1, d2)
-        g1 = _dot(sv0, sv1, sv2, d0, d1, d2)
-        juu = _dot(su0, su1, su2, su0, su1, su2)
-        juv = _dot(su0, su1, su2, sv0, sv1, sv2)
-        jvv = _dot(sv0, sv1, sv2, sv0, sv1, sv2)
-        a = juu + _dot(out[3, 0], out[3, 1], out[3, 2], d0, d1, d2)
-        b = juv + _dot(out[4, 0], out[4, 1], out[4, 2], d0, d1, d2)
-        c = jvv + _dot(out[5, 0], out[5, 1], out[5, 2], d0, d1, d2)
+        g0 = dot3(su0, su1, su2, d0, d1, d2)
+        g1 = dot3(sv0, sv1, sv2, d0, d1, d2)
+        juu = dot3(su0, su1, su2, su0, su1, su2)
+        juv = dot3(su0, su1, su2, sv0, sv1, sv2)
+        jvv = dot3(sv0, sv1, sv2, sv0, sv1, sv2)
+        a = juu + dot3(out[3, 0], out[3, 1], out[3, 2], d0, d1, d2)
+        b = juv + dot3(out[4, 0], out[4, 1], out[4, 2], d0, d1, d2)
+        c = jvv + dot3(out[5, 0], out[5, 1], out[5, 2], d0, d1, d2)
         if a * c - b * b <= 1e-12 * (a * a + c * c + 1e-300) or a <= 0:
             a, b, c = juu, juv, jvv  # not positive definite: Gauss–Newton
         det = max(a * c - b * b, 1e-300)
