@@ -86,33 +86,15 @@ class NormalEquations:
     def __init__(self, knots_u: np.ndarray, knots_v: np.ndarray, fixed: np.ndarray, *,
                  lengths_mm: tuple[float, float], degree: tuple[int, int]) -> None:
         p, q = degree
-        nu, nv = fixed.shape
         self.degree, self.ncp, self.width = (int(p), int(q)), fixed.size, (2 * p + 1) * (2 * q + 1)
-        H = thin_plate_matrix(knots_u, knots_v, degree=degree, length_u=lengths_mm[0],
-                              length_v=lengths_mm[1]).tocoo()
-        di, dj = H.col // nv - H.row // nv, H.col % nv - H.row % nv
-        outside = (np.abs(di) > p) | (np.abs(dj) > q)
-        if np.any(H.data[outside] != 0):  # basis functions that do not overlap bend nothing together
-            raise RuntimeError("thin-plate matrix has a coupling outside the basis functions' overlap")
-        h_band = np.zeros((self.ncp, self.width))
-        h_band[H.row[~outside], band_slot(di[~outside], dj[~outside], degree)] = H.data[~outside]
+        h_band = _thin_plate_band(knots_u, knots_v, fixed.shape, degree, lengths_mm)
         free = np.flatnonzero(~fixed.ravel())
         nf = free.size
         self.free3 = np.concatenate([free + k * self.ncp for k in range(3)])
         self.fixed3 = np.concatenate([np.flatnonzero(fixed.ravel()) + k * self.ncp for k in range(3)])
         index = np.full(self.ncp, -1)
         index[free] = np.arange(nf)
-        # Every band entry (c, slot) whose partner c2 exists.
-        c = np.repeat(np.arange(self.ncp), self.width)
-        slot = np.tile(np.arange(self.width), self.ncp)
-        i2 = c // nv + slot // (2 * q + 1) - p
-        j2 = c % nv + slot % (2 * q + 1) - q
-        inside = (i2 >= 0) & (i2 < nu) & (j2 >= 0) & (j2 < nv)
-        c, slot, c2 = c[inside], slot[inside], (i2 * nv + j2)[inside]
-        # The band holds the upper triangle (c2 ≥ c); an entry below reads its mirror (c2, c).
-        below = c2 < c
-        at = np.where(below, c2 * self.width + (self.width - 1 - slot), c * self.width + slot)
-        h_at = c * self.width + slot
+        c, c2, at, h_at = _band_entries(fixed.shape, degree)
         coupled = index[c] >= 0
         ff, fx = coupled & (index[c2] >= 0), coupled & (index[c2] < 0)
         rows, cols, src, h = [], [], [], []
@@ -192,6 +174,38 @@ class NormalEquations:
         M.eliminate_zeros()  # in place; pairs of the pattern that nothing coupled would only add fill
         c_all[self.free3] = _solve_spd(M, r)
         return c_all.reshape(3, -1).T.reshape(cp_current.shape)
+
+
+def _thin_plate_band(knots_u: np.ndarray, knots_v: np.ndarray, shape: tuple[int, int], degree: tuple[int, int],
+                     lengths_mm: tuple[float, float]) -> np.ndarray:
+    """The thin-plate matrix of the layout in band storage: (nu nv, (2p + 1)(2q + 1)) float64."""
+    p, q = degree
+    nv = shape[1]
+    H = thin_plate_matrix(knots_u, knots_v, degree=degree, length_u=lengths_mm[0], length_v=lengths_mm[1]).tocoo()
+    di, dj = H.col // nv - H.row // nv, H.col % nv - H.row % nv
+    outside = (np.abs(di) > p) | (np.abs(dj) > q)
+    if np.any(H.data[outside] != 0):  # basis functions that do not overlap bend nothing together
+        raise RuntimeError("thin-plate matrix has a coupling outside the basis functions' overlap")
+    band = np.zeros((shape[0] * nv, (2 * p + 1) * (2 * q + 1)))
+    band[H.row[~outside], band_slot(di[~outside], dj[~outside], degree)] = H.data[~outside]
+    return band
+
+
+def _band_entries(shape: tuple[int, int], degree: tuple[int, int]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair (c, c2) of control points whose basis functions overlap: c, c2, where the pair's value is in
+    the upper-triangle band (flat index c' width + slot', the mirror (c2, c) when c2 < c) and where its
+    thin-plate value is in the full band (c width + slot). All int64 (k,)."""
+    (nu, nv), (p, q) = shape, degree
+    width = (2 * p + 1) * (2 * q + 1)
+    c = np.repeat(np.arange(nu * nv), width)
+    slot = np.tile(np.arange(width), nu * nv)
+    i2 = c // nv + slot // (2 * q + 1) - p
+    j2 = c % nv + slot % (2 * q + 1) - q
+    inside = (i2 >= 0) & (i2 < nu) & (j2 >= 0) & (j2 < nv)
+    c, slot, c2 = c[inside], slot[inside], (i2 * nv + j2)[inside]
+    at = np.where(c2 < c, c2 * width + (width - 1 - slot), c * width + slot)
+    return c, c2, at, c * width + slot
 
 
 def _solve_spd(M: sp.csc_matrix, r: np.ndarray) -> np.ndarray:
