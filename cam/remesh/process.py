@@ -32,7 +32,7 @@ _CHILD_GRACE_S = 30.0
 # loops forever on rare inputs; its time for one mesh and target varies by a factor of about two between seeds and
 # two children sharing two cores), but never before _HANG_FLOOR_S.
 _HANG_FACTOR = 4.0
-_HANG_FLOOR_S = 30.0
+_HANG_FLOOR_S = 15.0
 
 
 class QuadriflowFailed(RuntimeError):
@@ -107,7 +107,7 @@ class QuadriflowRuns:
     does not depend on what runs beside it: QuadriFlow is deterministic for a mesh, a target and a seed.
 
     A run's limit is `timeout_s`, or, once some run on the mesh has ended on its own in t seconds, the
-    smaller of that and max(30 s, 4 t): a run that takes four times as long as one that ended hangs, and
+    smaller of that and max(15 s, 4 t): a run that takes four times as long as one that ended hangs, and
     waiting the full limit for it made a 3,000-point example wait five minutes.
 
     Parameters
