@@ -28,7 +28,7 @@ __all__ = ["QuadriflowFailed", "QuadriflowRuns", "run_quadriflow"]
 _CHECK_EVERY_S = 0.25
 # The child's own alarm, s beyond the parent's limit: it ends the child should the parent die without killing it.
 _CHILD_GRACE_S = 30.0
-# Once a run on a mesh has ended, a later run on it that takes this many times as long is taken to hang (QuadriFlow
+# Once a run on a mesh has given a mesh, a later run on it that takes this many times as long is taken to hang (QuadriFlow
 # loops forever on rare inputs; its time for one mesh and target varies by a factor of about two between seeds and
 # two children sharing two cores), but never before _HANG_FLOOR_S.
 _HANG_FACTOR = 4.0
@@ -106,8 +106,8 @@ class QuadriflowRuns:
     `time.monotonic`, or raises its `QuadriflowFailed`. `close()` kills what still runs. A run's result
     does not depend on what runs beside it: QuadriFlow is deterministic for a mesh, a target and a seed.
 
-    A run's limit is `timeout_s`, or, once some run on the mesh has ended on its own in t seconds, the
-    smaller of that and max(15 s, 4 t): a run that takes four times as long as one that ended hangs, and
+    A run's limit is `timeout_s`, or, once some run on the mesh has given a mesh in t seconds, the
+    smaller of that and max(15 s, 4 t): a run that takes four times as long as one that gave a mesh hangs, and
     waiting the full limit for it made a 3,000-point example wait five minutes.
 
     Parameters
@@ -128,7 +128,7 @@ class QuadriflowRuns:
         self._timeout_s = float(timeout_s)
         self._processes = max(1, int(processes))
         self._running: dict[tuple[int, int], tuple[subprocess.Popen, threading.Thread, dict, float]] = {}
-        self._quickest_s: float | None = None  # the shortest run that ended on its own
+        self._quickest_s: float | None = None  # the shortest run that gave a mesh
 
     def _limit_s(self) -> float:
         if self._quickest_s is None:
@@ -165,8 +165,9 @@ class QuadriflowRuns:
         finally:
             self._stop(key)
         seconds = out["ended"] - started
-        self._quickest_s = seconds if self._quickest_s is None else min(self._quickest_s, seconds)
         vertices, faces = _decode_result(proc.returncode, out.get("out", b""), out.get("err", b""))
+        # Only a run that gave a mesh sets the pace: a crash ends in no time and says nothing of how long a run takes.
+        self._quickest_s = seconds if self._quickest_s is None else min(self._quickest_s, seconds)
         return vertices, faces, seconds, started
 
     def close(self) -> None:

@@ -134,7 +134,7 @@ def remesh_quads(
           of the input is kept (the nearer one, by Hausdorff distance, on a tie).
           The report lists them under ``"candidates"`` (seed, QuadriFlow's target, faces,
           missed crease length, Hausdorff distance).
-        - ``timeout_s``: limit of one run, seconds; once a run has ended in t seconds, later runs that
+        - ``timeout_s``: limit of one run, seconds; once a run has given a mesh in t seconds, later runs that
           take over max(15 s, 4 t) are taken to hang and stopped (see `cam.remesh.process.QuadriflowRuns`).
         - ``preserve_sharp``: align quads with sharp features (QuadriFlow's ``-sharp``).
         - ``min_cost_flow``: QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).

@@ -79,8 +79,9 @@ def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
     assert issubclass(RemeshFailed, GeometryError)  # the runner shows its message to the user
 
 
-def _hang_on(monkeypatch, seeds):
-    """QuadriFlow children whose request carries one of `seeds` sleep instead of running (a hang)."""
+def _hang_on(monkeypatch, seeds, *, crash=frozenset()):
+    """QuadriFlow children whose request carries one of `seeds` sleep instead of running (a hang); those of a
+    seed in `crash` die of a segmentation fault at once."""
     import subprocess
     import sys
 
@@ -88,8 +89,12 @@ def _hang_on(monkeypatch, seeds):
 
     script = ("import io, runpy, sys, time\n"
               "import numpy as np\n"
+              "import os, signal\n"
               "data = sys.stdin.buffer.read()\n"
-              f"if int(np.load(io.BytesIO(data))['seed']) in {sorted(seeds)}:\n"
+              "seed = int(np.load(io.BytesIO(data))['seed'])\n"
+              f"if seed in {sorted(crash)}:\n"
+              "    os.kill(os.getpid(), signal.SIGSEGV)\n"
+              f"if seed in {sorted(seeds)}:\n"
               "    time.sleep(600)\n"
               "sys.stdin = io.TextIOWrapper(io.BytesIO(data))\n"
               "runpy.run_module('cam.remesh.child', run_name='__main__')\n")
@@ -117,6 +122,16 @@ def test_the_report_counts_every_run_and_the_failed_ones(monkeypatch):
     assert len(failed) == 2
     assert re.fullmatch(r"seed 1, 300 faces: timed out after \d+ s, 4 times the quickest run's", failed[0])
     assert re.fullmatch(r"seed 2, 312 faces: timed out after \d+ s, 4 times the quickest run's", failed[1])
+
+
+def test_a_run_that_crashes_at_once_does_not_shorten_the_hang_limit(monkeypatch):
+    # Seed 0 dies in a fraction of a second: were that its pace, seed 1's real run (over a second here) would
+    # count as a hang at a 0.5 s floor. Only a run that gave a mesh sets the pace.
+    _hang_on(monkeypatch, set(), crash={0})
+    mesh = _box_triangles()
+    result = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=300, seed=0, candidates=1, timeout_s=120))
+    assert result.report["seed"] == 1
+    assert result.report["failed_attempts"][0].startswith("seed 0, 300 faces: QuadriFlow crashed")
 
 
 def _box_with_a_corner_cut_off():
