@@ -145,10 +145,14 @@ def drop_ball(index: DropIndex, xy: np.ndarray, *, contact: bool = False
     q = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
     z = np.full(len(q), -np.inf)
     p = np.full((len(q), 3), np.nan)
-    drop_queries(q, index.triangles, index.normals, index.top, index.lo, index.hi, index.radius_mm,
-                 index.origin, index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts,
-                 index.members, z, p)
+    drop_queries(q, *_ball_arrays(index), z, p)
     return (z, p) if contact else z
+
+
+def _ball_arrays(index: DropIndex) -> tuple:
+    """The index as the ball kernels (`_dropkernel.drop_queries`, `clear_queries`) take it, after the queries."""
+    return (index.triangles, index.normals, index.top, index.lo, index.hi, index.radius_mm, index.origin,
+            index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts, index.members)
 
 
 def ball_clears(index: DropIndex, xy: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -174,9 +178,7 @@ def ball_clears(index: DropIndex, xy: np.ndarray, limit: np.ndarray) -> np.ndarr
     q = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
     z = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, dtype=np.float64), (len(q),)))
     clear = np.zeros(len(q), dtype=np.bool_)
-    clear_queries(q, z, index.triangles, index.normals, index.top, index.lo, index.hi, index.radius_mm,
-                  index.origin, index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts,
-                  index.members, clear)
+    clear_queries(q, z, *_ball_arrays(index), clear)
     return clear
 
 
