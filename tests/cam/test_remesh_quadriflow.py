@@ -134,6 +134,21 @@ def test_a_run_that_crashes_at_once_does_not_shorten_the_hang_limit(monkeypatch)
     assert result.report["failed_attempts"][0].startswith("seed 0, 300 faces: QuadriFlow crashed")
 
 
+def test_a_run_beside_a_hang_that_gives_a_mesh_sets_the_pace(monkeypatch):
+    # Seed 0 hangs; seed 1, started beside it, gives a mesh in a second or two. Seed 0 is then stopped at four
+    # times that, not at the 120 s limit: before, only the awaited run set the pace, so a 50k-point Fandisk
+    # waited the full 300 s on its first seed.
+    _hang_on(monkeypatch, {0})
+    mesh = _box_triangles()
+    started = time.monotonic()
+    params = RemeshParams(target_faces=300, seed=0, attempts=3, candidates=2, timeout_s=120)
+    result = remesh_quads(mesh.vertices, mesh.faces, params, processes=2)
+    assert time.monotonic() - started < 60
+    assert re.fullmatch(r"seed 0, 300 faces: timed out after \d+ s, 4 times the quickest run's",
+                        result.report["failed_attempts"][0])
+    assert [c["seed"] for c in result.report["candidates"]] == [1, 2]
+
+
 def _box_with_a_corner_cut_off():
     """A 40 × 30 × 20 mm box whose corner a slanted plane cuts off: creases that run across the box's axes."""
     manifold3d = pytest.importorskip("manifold3d")
