@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cam.spline._compiled import box_bounds
+
 __all__ = ["PieceBoxes", "c0_knots", "c0_pieces", "foot_in_pieces", "make_piece_boxes", "span_boxes"]
 
 
@@ -64,15 +66,18 @@ class PieceBoxes:
 
     Attributes
     ----------
-    lo, hi : tuple of (m, 3) float64
-        Lower and upper corners in mm of the boxes of piece k = iu * pieces_v + iv, one row per
-        non-empty knot span of the piece (m may differ between pieces, and be 0).
+    lo, hi : (m, 3) float64
+        Lower and upper corners in mm of the boxes, one row per non-empty knot span, piece by piece:
+        piece k = iu * pieces_v + iv holds rows starts[k] .. starts[k + 1] (none, for some pieces).
+    starts : (pieces + 1,) int64
+        Where each piece's rows begin.
     pieces_v : int
         Number of pieces along v.
     """
 
-    lo: tuple[np.ndarray, ...]
-    hi: tuple[np.ndarray, ...]
+    lo: np.ndarray
+    hi: np.ndarray
+    starts: np.ndarray
     pieces_v: int
 
     def distance_bound(self, points: np.ndarray, iu: np.ndarray, iv: np.ndarray) -> np.ndarray:
@@ -90,20 +95,8 @@ class PieceBoxes:
         bound : (k,) float64
             Distance in mm to the nearest box of the piece; inf for a piece without spans.
         """
-        out = np.full(len(points), np.inf)
         key = np.asarray(iu) * self.pieces_v + np.asarray(iv)
-        for k in np.unique(key):
-            lo, hi = self.lo[k], self.hi[k]
-            if not len(lo):
-                continue
-            at = np.flatnonzero(key == k)
-            step = max(1, 2_000_000 // len(lo))  # points per chunk: about 50 MB of gaps
-            for c in range(0, at.size, step):
-                sel = at[c:c + step]
-                x = points[sel][:, None, :]
-                gap = np.maximum(np.maximum(lo - x, x - hi), 0.0)
-                out[sel] = np.sqrt(np.min(np.einsum("kmi,kmi->km", gap, gap), axis=1))
-        return out
+        return box_bounds(points, key, self.lo, self.hi, self.starts)
 
 
 def span_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, *,
@@ -176,13 +169,14 @@ def make_piece_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: n
     # The piece a span belongs to: the one its midpoint falls in (spans never straddle a C0 line).
     piece_u = np.clip(np.searchsorted(bu, 0.5 * (ku[su + p] + ku[su + p + 1]), side="right") - 1, 0, bu.size - 2)
     piece_v = np.clip(np.searchsorted(bv, 0.5 * (kv[sv + q] + kv[sv + q + 1]), side="right") - 1, 0, bv.size - 2)
-    lo, hi = [], []
+    lo, hi, counts = [], [], []
     for a in range(bu.size - 1):
         for b in range(bv.size - 1):
             i, j = np.ix_(su[piece_u == a], sv[piece_v == b])
             lo.append(lo_all[i, j].reshape(-1, 3))
             hi.append(hi_all[i, j].reshape(-1, 3))
-    return PieceBoxes(tuple(lo), tuple(hi), bv.size - 1)
+            counts.append(len(lo[-1]))
+    return PieceBoxes(np.concatenate(lo), np.concatenate(hi), np.r_[0, np.cumsum(counts)].astype(np.int64), bv.size - 1)
 
 
 def foot_in_pieces(newton, pieces_u: np.ndarray, pieces_v: np.ndarray, uv: np.ndarray, *, rounds: int = 2,

@@ -253,3 +253,33 @@ def test_projected_feet_on_a_plane_are_exact_and_held_in_their_box():
     lo, hi = np.tile([0.2, 0.1], (400, 1)), np.tile([0.7, 0.9], (400, 1))
     got = project_in_boxes(ku, kv, cp, x, np.full((400, 2), 0.5), lo, hi, (3, 3), 12)
     np.testing.assert_allclose(got, np.clip(x[:, :2] / [3, 2], lo, hi), atol=1e-12)
+
+
+def numpy_box_bounds(points, key, lo, hi, starts):
+    """`PieceBoxes.distance_bound`'s numpy code before the kernel: piece by piece, gaps to every box."""
+    out = np.full(len(points), np.inf)
+    for k in np.unique(key):
+        blo, bhi = lo[starts[k]:starts[k + 1]], hi[starts[k]:starts[k + 1]]
+        if not len(blo):
+            continue
+        at = np.flatnonzero(key == k)
+        x = points[at][:, None, :]
+        gap = np.maximum(np.maximum(blo - x, x - bhi), 0.0)
+        out[at] = np.sqrt(np.min(np.einsum("kmi,kmi->km", gap, gap), axis=1))
+    return out
+
+
+def test_box_bounds_are_bit_for_bit_those_of_numpy():
+    from cam.spline._compiled import box_bounds
+
+    rng = np.random.default_rng(7)
+    counts = np.array([5, 0, 40, 1, 17])  # piece 1 has no boxes: its bound is inf
+    starts = np.r_[0, np.cumsum(counts)]
+    centre = rng.uniform(-20.0, 20.0, (starts[-1], 3))
+    half = rng.uniform(0.0, 3.0, (starts[-1], 3))
+    lo, hi = centre - half, centre + half
+    points = np.vstack([rng.uniform(-30.0, 30.0, (2000, 3)), centre[:50]])  # the last 50 lie inside boxes
+    key = rng.integers(0, len(counts), len(points))
+    got = box_bounds(points, key, lo, hi, starts)
+    np.testing.assert_array_equal(got, numpy_box_bounds(points, key, lo, hi, starts))
+    assert np.all(np.isinf(got[key == 1])) and np.isfinite(got[key != 1]).all()
