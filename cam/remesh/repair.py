@@ -4,7 +4,7 @@ A repair is safe when it changes no geometry beyond the quads it touches:
 collapsing a folded quad (two corners at one point) along its short diagonal,
 merging the two quads around an interior valence-2 vertex into one, closing
 triangular holes in pairs (:mod:`cam.remesh.holes`) and closing a hole bounded
-by exactly four edges with one quad. Anything else is reported, not guessed at.
+by exactly four edges with one quad, or six edges with two. Anything else is reported, not guessed at.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ def repair_quad_mesh(
     split_unpaired: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Apply the safe repairs: collapse folded quads, merge quads at interior valence-2 vertices,
-    close 3-edge holes in pairs and 4-edge holes with a quad, drop unused vertices.
+    close 3-edge holes in pairs, 4-edge holes with a quad and 6-edge holes with two, merge again the quads
+    around valence-2 vertices the filling left, drop unused vertices.
 
     Holes are closed only while the mesh has more boundary loops than
     ``expected_boundary_loops``, smallest first.
@@ -72,8 +73,11 @@ def repair_quad_mesh(
         repairs.append(_merged(merges))
     verts, quads, done = _close_triangle_holes(verts, quads, expected_boundary_loops, split_unpaired=split_unpaired)
     repairs += done
-    quads, done = _close_square_holes(quads, len(verts), expected_boundary_loops)
+    quads, done = _close_small_even_holes(verts, quads, expected_boundary_loops)
     repairs += done
+    quads, more = _merge_valence2(quads, len(verts))  # a closed hole can leave a valence-2 vertex beside it
+    if more:
+        repairs.append(_merged(more))
     verts2, quads2 = drop_unused_vertices(verts, quads)
     if len(verts2) != len(verts):
         repairs.append(f"dropped {len(verts) - len(verts2)} unused vertices")
@@ -188,24 +192,31 @@ def _close_triangle_holes(verts: np.ndarray, quads: np.ndarray, expected_boundar
         return verts, quads, [f"{exc}: filled {len(triangles)} triangular hole(s) and split every face into quads"]
 
 
-def _close_square_holes(quads: np.ndarray, n_vertices: int,
-                        expected_boundary_loops: int) -> tuple[np.ndarray, list[str]]:
-    """Close the extra 4-edge holes with a quad each, smallest loops first; returns the quads and what was done."""
-    topo = quad_topology(quads, n_vertices)
+def _close_small_even_holes(verts: np.ndarray, quads: np.ndarray,
+                            expected_boundary_loops: int) -> tuple[np.ndarray, list[str]]:
+    """Close the extra holes of 4 edges with a quad and of 6 edges with two (split along the shortest of the
+    three diagonals), smallest loops first; returns the quads and what was done."""
+    topo = quad_topology(quads, len(verts))
     loops = sorted(boundary_loops(topo), key=len)
     excess = len(loops) - expected_boundary_loops
-    new_faces = []
+    new_faces, closed = [], {4: 0, 6: 0}
     for loop in loops:
-        if len(new_faces) >= excess or len(loop) != 4:
+        if sum(closed.values()) >= excess or len(loop) not in closed:
             continue
         # Boundary half-edges run with the existing faces on their left; the patch runs the other way.
-        ring = [int(topo.origin[h]) for h in loop]
-        new_faces.append(ring[::-1])
+        ring = [int(topo.origin[h]) for h in loop][::-1]
+        if len(set(ring)) != len(ring):
+            continue  # a loop that passes a vertex twice is not a disc's rim
+        if len(ring) == 6:
+            k = min(range(3), key=lambda i: float(np.linalg.norm(verts[ring[i]] - verts[ring[i + 3]])))
+            ring = ring[k:] + ring[:k]
+            new_faces += [ring[0:4], [ring[3], ring[4], ring[5], ring[0]]]
+        else:
+            new_faces.append(ring)
+        closed[len(ring)] += 1
     if not new_faces:
         return quads, []
     quads = np.vstack([quads, np.asarray(new_faces, dtype=np.int64)])
-    done = [f"closed {len(new_faces)} hole(s) of 4 edges with a quad each"]
-    quads, merges = _merge_valence2(quads, n_vertices)
-    if merges:
-        done.append(_merged(merges))
+    done = [f"closed {n} hole(s) of {edges} edges with {edges // 2 - 1} quad(s) each"
+            for edges, n in closed.items() if n]
     return quads, done
