@@ -76,7 +76,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="remesh",
-        version="3",
+        version="4",
         inputs=("mesh.ply",),
         outputs=("quads.obj", "remesh.json"),
         param_groups=("remesh",),
