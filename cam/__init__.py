@@ -29,7 +29,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["REPORT_INTERVAL_S", "CheckCancel", "GeometryError", "Progress", "map_forked", "progress_between"]
+__all__ = ["REPORT_INTERVAL_S", "CheckCancel", "GeometryError", "Progress", "map_forked", "progress_between", "progress_labelled"]
 
 #: progress(fraction in [0, 1], message or None)
 Progress = Callable[..., None]
@@ -50,6 +50,17 @@ def progress_between(progress: Progress | None, start: float, end: float) -> Pro
     def report(fraction: float, message: str | None = None) -> None:
         if progress is not None:
             progress(start + (end - start) * min(max(float(fraction), 0.0), 1.0), message)
+
+    return report
+
+
+def progress_labelled(progress: Progress | None, start: float, end: float, label: str) -> Progress:
+    """`progress_between` for a sub-step whose messages follow `label` ("label: message")."""
+
+    def report(fraction: float, message: str | None = None) -> None:
+        if progress is not None:
+            progress(start + (end - start) * min(max(float(fraction), 0.0), 1.0),
+                     f"{label}: {message}" if message else label)
 
     return report
 

@@ -79,8 +79,8 @@ def target_region(centres_xy: np.ndarray, bounds: tuple[float, float, float, flo
 
 
 def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, scallop_mm: float, chord_mm: float,
-                 target_mm: float, cleanup_rounds: int = 2, check_cancel: CheckCancel | None = None,
-                 progress: Progress | None = None) -> FinishedSetup:
+                 target_mm: float, cleanup_rounds: int = 2, processes: int = 1,
+                 check_cancel: CheckCancel | None = None, progress: Progress | None = None) -> FinishedSetup:
     """Plan raster, waterline and clean-up passes that finish the given samples of the part.
 
     Parameters
@@ -95,6 +95,8 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
         The scallop height a sample counts as finished within.
     cleanup_rounds : int
         Times the leftover samples get clean-up passes and are measured again.
+    processes : int
+        Waterline levels worked on at once, in forked processes (the passes are the same).
     check_cancel : callable, optional
     progress : callable, optional
         progress(fraction, message) through the raster's lines, the waterline's levels and the clean-up
@@ -120,7 +122,7 @@ def finish_setup(part: SetupPart, points: np.ndarray, normals: np.ndarray, *, sc
     out.add("raster", raster.passes)
     out.certified_mm["raster"] = raster.scallop_mm + raster.chord_mm
     waterline = waterline_passes(part, bounds=bounds, scallop_mm=scallop_mm, chord_mm=chord_mm, region=region,
-                                 min_slope_deg=WATERLINE_MIN_SLOPE_DEG, check_cancel=check_cancel,
+                                 min_slope_deg=WATERLINE_MIN_SLOPE_DEG, processes=processes, check_cancel=check_cancel,
                                  progress=progress_between(report, 0.4, 0.8))
     out.add("waterline", waterline.passes)
     out.certified_mm["waterline"] = waterline.scallop_mm + waterline.chord_mm

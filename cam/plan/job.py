@@ -23,7 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cam import CheckCancel, GeometryError, Progress, progress_between
+from cam import (
+    CheckCancel,
+    GeometryError,
+    Progress,
+    progress_between,
+    progress_labelled,
+)
 from cam.gcode.moves import MoveList
 from cam.gcode.setup import Setup
 from cam.mesh.dropcutter import drop_ball, drop_index
@@ -151,7 +157,7 @@ def _patch_passes(surfaces: SurfacesIn | None, setups: list[Setup], parts: list[
 
 def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach: list[np.ndarray],
                          passes: list[_Passes], left: np.ndarray, *, h: float, scallop_mm: float, chord_mm: float,
-                         progress, check_cancel) -> list[dict]:
+                         processes: int, progress, check_cancel) -> list[dict]:
     """Whole-part finishing, setup by setup, of what each reaches and no earlier pass finished; updates
     `passes` and `left` in place and returns each setup's stats."""
     stats = []
@@ -163,8 +169,8 @@ def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach:
                                                        tool_radius_mm=part.radius_mm, reach_mm=h))
         target = reach[k] & ~(left <= h)
         done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
-                            target_mm=h, check_cancel=check_cancel,
-                            progress=_labelled(progress, k / len(parts), (k + 1) / len(parts),
+                            target_mm=h, processes=processes, check_cancel=check_cancel,
+                            progress=progress_labelled(progress, k / len(parts), (k + 1) / len(parts),
                                                f"setup {k + 1}: finishing on the mesh"))
         passes[k].centres += done.passes
         passes[k].strategy += done.strategy
@@ -172,16 +178,6 @@ def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach:
         stats.append({"targets": int(target.sum()), **done.stats,
                       "strategy_bound_mm": {s: round(v, 6) for s, v in done.certified_mm.items()}})
     return stats
-
-
-def _labelled(progress: Progress, start: float, end: float, label: str) -> Progress:
-    """`progress` for a step that takes `start`..`end` of it, its messages after `label`."""
-
-    def report(fraction: float, message: str | None = None) -> None:
-        progress(start + (end - start) * min(max(float(fraction), 0.0), 1.0),
-                 f"{label}: {message}" if message else label)
-
-    return report
 
 
 #: Spacing of the points a link's rapid is checked at, mm.
@@ -243,7 +239,8 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     given_setups : list of Setup
         Setups to consider first (segment's).
     processes : int
-        Patches planned at once, in forked processes (`cam.map_forked`; the programs are the same).
+        Patches, and waterline levels, planned at once, in forked processes (`cam.map_forked`; the programs
+        are the same).
     progress, check_cancel : callable, optional
         cam's callbacks (see `cam`).
 
@@ -276,10 +273,10 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     progress(0.05, "patch passes")
     patch_plan, passes = _patch_passes(surfaces, choice.setups, parts, tool, toolpath, chord_mm=chord_mm,
                                        processes=processes, check_cancel=check_cancel,
-                                       progress=_labelled(progress, 0.05, 0.2, "patch passes"))
+                                       progress=progress_labelled(progress, 0.05, 0.2, "patch passes"))
     left = np.full(len(samples.area), np.inf)
     stats = _finish_rest_of_part(parts, samples, choice.reach, passes, left, h=h, scallop_mm=scallop_mm,
-                                 chord_mm=chord_mm, progress=progress_between(progress, 0.2, 0.8),
+                                 chord_mm=chord_mm, processes=processes, progress=progress_between(progress, 0.2, 0.8),
                                  check_cancel=check_cancel)
     reach_main = choice.any()
     finished = left <= h
@@ -288,8 +285,8 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
                          bound_mm=float(np.max(left[finished & choice.reach[k]], initial=0.0)), stats=stats[k])
                 for k, part in enumerate(parts)]
     rest_left, rest_programs = _rest(vertices, faces, samples, choice.setups, left, tool, toolpath, h=h,
-                                     scallop_mm=scallop_mm, chord_mm=chord_mm, top_z=top_z, progress=progress_between(progress, 0.8, 0.97),
-                                     check_cancel=check_cancel)
+                                     scallop_mm=scallop_mm, chord_mm=chord_mm, top_z=top_z, processes=processes,
+                                     progress=progress_between(progress, 0.8, 0.97), check_cancel=check_cancel)
     coverage = _coverage(samples, reach_main, left, rest_left, h)
     progress(0.98, "linked")
     return JobPlan(programs=[p for p in programs + rest_programs if p.passes], setups=choice.setups,
@@ -299,7 +296,7 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
 
 def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: np.ndarray, tool: ToolParams,
           toolpath: ToolpathParams, *, h: float, scallop_mm: float, chord_mm: float, top_z: list[float],
-          progress, check_cancel) -> tuple[np.ndarray | None, list[ProgramPlan]]:
+          processes: int, progress, check_cancel) -> tuple[np.ndarray | None, list[ProgramPlan]]:
     """The rest ball's programs for what the main ball leaves over the target; None without a rest ball."""
     if tool.rest_radius_mm is None:
         return None, []
@@ -314,8 +311,8 @@ def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: n
         target = ~(rest_left <= h) & part.reaches(points, normals)
         progress(k / len(setups), f"setup {k + 1}: rest ball")
         done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
-                            target_mm=h, check_cancel=check_cancel,
-                            progress=_labelled(progress, k / len(setups), (k + 1) / len(setups),
+                            target_mm=h, processes=processes, check_cancel=check_cancel,
+                            progress=progress_labelled(progress, k / len(setups), (k + 1) / len(setups),
                                                f"setup {k + 1}: rest ball"))
         rest_left[target] = np.minimum(rest_left[target], done.left)
         finished = target.copy()

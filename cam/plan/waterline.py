@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from skimage.measure import find_contours
 
-from cam import CheckCancel, Progress
+from cam import CheckCancel, Progress, map_forked, progress_labelled
 from cam.plan.cusps import cusp_heights
 from cam.plan.lines import GOUGE_TOL_MM, merge_straight, split_runs
 from cam.plan.part import SetupPart
@@ -177,7 +177,8 @@ def _level_runs(grid: _Grid, part: SetupPart, level: float, *, steep_cos: float,
 def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, float],
                      scallop_mm: float, chord_mm: float, region: Callable[[np.ndarray], np.ndarray],
                      min_slope_deg: float = 45.0, max_splits: int = 2, grid_mm: float | None = None,
-                     check_cancel: CheckCancel | None = None, progress: Progress | None = None) -> WaterlinePasses:
+                     processes: int = 1, check_cancel: CheckCancel | None = None,
+                     progress: Progress | None = None) -> WaterlinePasses:
     """Waterline passes over the part's steep area inside `bounds` (machine xy).
 
     Parameters
@@ -197,6 +198,9 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
     grid_mm : float, optional
         Spacing of the drop-cutter grid the contours are found on; default a quarter of the flat pass
         interval, at most 0.5 mm.
+    processes : int
+        Levels worked on at once, in forked processes (`cam.map_forked`): each level's contours, and each
+        level's passes, are the same computed alone.
     check_cancel : callable, optional
     progress : callable, optional
         progress(fraction, message) level by level as the levels are found and as they become passes,
@@ -217,12 +221,14 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
     table = part.floor_z + r
     # From half an interval under the highest ball position down to the lowest above the table.
     z_top = float(grid.z.max())
-    levels = {}
-    zs = np.arange(z_top - 0.5 * step, table, -step)
-    for k, z in enumerate(zs):
-        report(0.1 + 0.4 * k / len(zs), f"waterline level {k + 1} of {len(zs)}")
-        levels[float(z)] = _level_runs(grid, part, float(z), steep_cos=steep_cos, region=region, near=None,
-                                       near_mm=0)
+    zs = [float(z) for z in np.arange(z_top - 0.5 * step, table, -step)]
+
+    def level_runs(k: int, _cc) -> list[np.ndarray]:
+        return _level_runs(grid, part, zs[k], steep_cos=steep_cos, region=region, near=None, near_mm=0)
+
+    found = map_forked(level_runs, len(zs), processes=processes, check_cancel=check_cancel,
+                       progress=progress_labelled(report, 0.1, 0.5, f"waterline: {len(zs)} levels"))
+    levels = dict(zip(zs, found))
     resolution = spacing / 2**BISECT_ROUNDS
     for split in range(max_splits + 1):
         check_cancel()
@@ -230,19 +236,29 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
                                                       f"round {split + 1}")
         over = list(_over(levels, part, scallop_mm + resolution, steep_cos))
         worst = max((h for *_, h in over), default=0.0)  # the largest finite cusp between the levels as they stand
-        added = {}
-        for za, zb, bad_xy, _ in over if split < max_splits else []:
-            if len(bad_xy):
-                zm = 0.5 * (za + zb)
-                added[zm] = _level_runs(grid, part, zm, steep_cos=steep_cos, region=region,
-                                        near=cKDTree(bad_xy), near_mm=step)
-        if not added:
+        between = [(0.5 * (za + zb), bad_xy) for za, zb, bad_xy, _ in (over if split < max_splits else [])
+                   if len(bad_xy)]
+        if not between:
             break
-        levels.update(added)
+
+        def added_runs(k: int, _cc, between=between) -> list[np.ndarray]:
+            zm, bad_xy = between[k]
+            return _level_runs(grid, part, zm, steep_cos=steep_cos, region=region, near=cKDTree(bad_xy),
+                               near_mm=step)
+
+        levels.update(zip([zm for zm, _ in between],
+                          map_forked(added_runs, len(between), processes=processes, check_cancel=check_cancel)))
+    ordered = sorted(levels.items(), reverse=True)
+
+    def followed(k: int, _cc) -> tuple[list[np.ndarray], float]:
+        z, runs = ordered[k]
+        return _follow_walls(part, runs, z, chord_mm=chord_mm, spacing=spacing, lift_mm=0.5 * chord_mm)
+
     passes, chord = [], resolution
-    for k, (z, runs) in enumerate(sorted(levels.items(), reverse=True)):
-        report(0.7 + 0.3 * k / len(levels), f"waterline passes: level {k + 1} of {len(levels)} along the walls")
-        runs, dev = _follow_walls(part, runs, z, chord_mm=chord_mm, spacing=spacing, lift_mm=0.5 * chord_mm)
+    label = f"waterline passes along the walls: {len(ordered)} levels"
+    done = map_forked(followed, len(ordered), processes=processes, check_cancel=check_cancel,
+                      progress=progress_labelled(report, 0.7, 1.0, label))
+    for (z, _), (runs, dev) in zip(ordered, done):
         chord = max(chord, dev)
         passes += [merge_straight(np.column_stack([xy, np.full(len(xy), z)])) for xy in runs]
     return WaterlinePasses(passes=passes, scallop_mm=float(worst), chord_mm=chord, levels=len(levels))

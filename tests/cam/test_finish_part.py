@@ -120,3 +120,16 @@ def test_a_planted_gouge_fails_against_the_mesh():
     report = measure_part(vertices, faces, [bad], plan.setups, tool_radius_mm=R, rest_radius_mm=None, target_mm=H,
                           spacing_mm=width / 4, rapid_margin_mm=tp.rapid_margin_mm).report
     assert report["max_gouge_mm"] == pytest.approx(0.3, abs=0.02)
+
+
+def test_waterline_levels_in_forked_processes_give_the_same_programs():
+    # The levels are worked on side by side (processes=2); each level is the one computed alone, so the
+    # programs are the serial run's, move for move.
+    solid = manifold3d.Manifold.cylinder(12.0, 10.0, 10.0, 48) + manifold3d.Manifold.cube([30.0, 24.0, 4.0], center=True)
+    vertices, faces = _mesh(solid)
+    tp = ToolpathParams(scallop_height_mm=H, max_setups=1)
+    serial = plan_job(vertices, faces, ToolParams(radius_mm=R), tp)
+    forked = plan_job(vertices, faces, ToolParams(radius_mm=R), tp, processes=2)
+    assert "waterline" in serial.programs[0].strategy
+    assert [write_program(p.moves, header={}) for p in forked.programs] == \
+        [write_program(p.moves, header={}) for p in serial.programs]
