@@ -239,7 +239,7 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     given_setups : list of Setup
         Setups to consider first (segment's).
     processes : int
-        Patches, and waterline levels, planned at once, in forked processes (`cam.map_forked`; the programs
+        Patches, waterline levels and candidate setups worked on at once, in forked processes (`cam.map_forked`; the programs
         are the same).
     progress, check_cancel : callable, optional
         cam's callbacks (see `cam`).
@@ -265,7 +265,7 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     progress(0.01, "sampling the part")
     samples = sample_surface(vertices, faces, spacing_mm=width / 3)
     choice = choose_setups(samples, vertices, faces, tool_radius_mm=r, max_setups=toolpath.max_setups,
-                           given=list(given_setups), check_cancel=check_cancel)
+                           given=list(given_setups), processes=processes, check_cancel=check_cancel)
     if not choice.setups or not choice.any().any():
         raise GeometryError(f"no setup reaches any of the part with a ball of radius {r} mm")
     check_cancel()

@@ -31,15 +31,16 @@ class SetupPart:
         The setup whose machine frame the part is in.
     index : DropIndex
         The part's triangles bucketed for the ball.
-    mesh : MeshIndex
-        The same triangles for closest-point queries.
+    mesh : MeshIndex or None
+        The same triangles for closest-point queries; None in a part made for reach alone
+        (`setup_part(..., closest=False)`), whose `nearest` and `wall_normals` then raise.
     floor_z : float
         The table: the part's lowest z, mm. The ball centre stays at least r above it.
     """
 
     setup: Setup
     index: DropIndex
-    mesh: MeshIndex
+    mesh: MeshIndex | None
     floor_z: float
 
     @property
@@ -69,6 +70,8 @@ class SetupPart:
     def nearest(self, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance (n,) mm from each ball centre (n, 3) to the part, and the part's unit normal (n, 3) where
         it is nearest (from the foot towards the centre: the contact normal of a ball touching it there)."""
+        if self.mesh is None:
+            raise ValueError("this SetupPart was made for reach alone (setup_part(..., closest=False))")
         foot, _, tri, _ = closest_points(self.mesh, centres)
         d = centres - foot
         length = np.linalg.norm(d, axis=1, keepdims=True)
@@ -104,7 +107,8 @@ class SetupPart:
         return out
 
 
-def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_radius_mm: float) -> SetupPart:
+def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_radius_mm: float,
+               closest: bool = True) -> SetupPart:
     """The closed part (part frame, outward) moved into the setup's machine frame, for a ball of this radius.
 
     Parameters
@@ -115,6 +119,9 @@ def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_ra
         Triangles, outward.
     setup : Setup
     tool_radius_mm : float
+    closest : bool
+        Build the closest-point index too (`SetupPart.nearest`); reach (`SetupPart.reaches`) needs only
+        the drop-cutter's, and the setup choice asks it of a dozen candidate axes.
 
     Returns
     -------
@@ -124,5 +131,5 @@ def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_ra
     F = np.asarray(faces, dtype=np.int64)
     # Every triangle, not only those facing the tool (enough for a valid solid): a reconstructed mesh can
     # fold over itself, and the README example's did, where a down-facing triangle is met first.
-    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm), mesh=mesh_index(V, F),
-                     floor_z=float(V[:, 2].min()))
+    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm),
+                     mesh=mesh_index(V, F) if closest else None, floor_z=float(V[:, 2].min()))

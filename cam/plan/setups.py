@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam import CheckCancel
+from cam import CheckCancel, map_forked
 from cam.gcode.setup import Setup
 from cam.mesh.samples import SurfaceSamples
 from cam.plan.part import setup_part
@@ -90,7 +90,7 @@ def reachable(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, 
     -------
     (k,) bool
     """
-    part = setup_part(vertices, faces, setup, tool_radius_mm=tool_radius_mm)
+    part = setup_part(vertices, faces, setup, tool_radius_mm=tool_radius_mm, closest=False)
     return part.reaches(setup.to_machine(samples.points), setup.to_machine(samples.normals, direction=True))
 
 
@@ -115,7 +115,8 @@ def _candidate_axes(normals: np.ndarray, area: np.ndarray, given: list[Setup], r
 
 def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, *, tool_radius_mm: float,
                   max_setups: int, given: list[Setup] = (), rng: np.random.Generator | None = None,
-                  min_gain: float = 1e-3, check_cancel: CheckCancel | None = None) -> SetupReach:
+                  min_gain: float = 1e-3, processes: int = 1, check_cancel: CheckCancel | None = None
+                  ) -> SetupReach:
     """Up to `max_setups` setups that together reach the most of the part, greedily.
 
     Parameters
@@ -132,6 +133,8 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
         For the k-means of the normals; default seeded with 0.
     min_gain : float
         A setup is added only while it reaches at least this share of the part's area more.
+    processes : int
+        Candidate axes measured at once, in forked processes (`cam.map_forked`; the same reach).
     check_cancel : callable, optional
         cam's callback (see `cam`), called before each setup's reach is computed.
 
@@ -147,11 +150,10 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
     # the setups chosen get their reach on all of them.
     few = samples.subset(slice(None, None, max(len(samples.area) // _SCORE_SAMPLES, 1)))
     total = float(few.area.sum())
-    candidates = []
-    for k, axis in enumerate(axes):
-        check_cancel()
-        setup = given[k] if k < len(given) else setup_for_axis(0, axis, vertices)
-        candidates.append((setup, reachable(few, vertices, faces, setup, tool_radius_mm=tool_radius_mm)))
+    trial = [given[k] if k < len(given) else setup_for_axis(0, axis, vertices) for k, axis in enumerate(axes)]
+    reaches = map_forked(lambda k, _cc: reachable(few, vertices, faces, trial[k], tool_radius_mm=tool_radius_mm),
+                         len(trial), processes=processes, check_cancel=check_cancel)
+    candidates = list(zip(trial, reaches))
     chosen: list[tuple[Setup, np.ndarray]] = []
     covered = np.zeros(len(few.area), dtype=bool)
     while len(chosen) < max_setups and candidates:
@@ -168,8 +170,6 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
         chosen.append((Setup(id=len(chosen) + 1, rotation=setup.rotation, translation=setup.translation), reach))
         covered |= reach
     setups = [s for s, _ in chosen]
-    reach = []
-    for s in setups:
-        check_cancel()
-        reach.append(reachable(samples, vertices, faces, s, tool_radius_mm=tool_radius_mm))
+    reach = map_forked(lambda k, _cc: reachable(samples, vertices, faces, setups[k], tool_radius_mm=tool_radius_mm),
+                       len(setups), processes=processes, check_cancel=check_cancel)
     return SetupReach(setups=setups, reach=reach)
