@@ -30,8 +30,8 @@ Lagrangian with penalties r1, r0 (inner products weighted by edge length). Each 
     3. P, Q <- closed-form vectorial shrinkage (thresholds alpha1/r1, alpha0/r0);
     4. multipliers <- multipliers + r (split variable - operator);
 until the relative change of N is below the tolerance. The two system matrices never change: each
-is factored once (SuperLU, scipy.sparse.linalg.splu) and solved for the three normal components
-at once.
+is factored once (SuperLU, scipy.sparse.linalg.splu) and solved for the three normal components,
+side by side in threads where they are given.
 
 Inconsistently oriented neighbours are compared with a sign flip; edges with more than two faces are
 treated like boundary edges (no coupling across them).
@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -138,6 +139,7 @@ def tgv_filter_normals(
     tolerance: float,
     on_iteration: Callable[[int, float], None] | None = None,
     check_cancel: CheckCancel | None = None,
+    threads: int = 1,
 ) -> TGVResult:
     """Filter the face normals of a triangle mesh with MeshTGV.
 
@@ -162,6 +164,11 @@ def tgv_filter_normals(
         ``on_iteration(k, relative_change)``, called after outer iteration k.
     check_cancel : callable, optional
         Called after each outer iteration, before ``on_iteration``; it stops the work by raising.
+    threads : int
+        Threads for the sparse factorisations and solves (SuperLU runs without the GIL): the two
+        systems are factored at once, and each solve's three right-hand sides solved side by side.
+        A column solved alone is bit for bit the same as in a block, so the result does not depend
+        on it.
 
     Returns
     -------
@@ -175,11 +182,15 @@ def tgv_filter_normals(
     faces, topo, inv = _renumber_faces(faces, topo)
     split = _assemble(vertices, faces, topo, r0=r0, r1=r1)
     t_setup = time.perf_counter()
-    lu_n, lu_g = _factor(split)
-    t_factor = time.perf_counter()
-    normals, k, rel, converged = _iterate(split, lu_n, lu_g, alpha0=alpha0, alpha1=alpha1, r0=r0, r1=r1,
-                                          max_iterations=max_iterations, tolerance=tolerance,
-                                          on_iteration=on_iteration, check_cancel=check_cancel)
+    threads = max(1, int(threads))
+    with ThreadPoolExecutor(threads) as pool:
+        lu_n, lu_g = pool.map(_factor, (split.KN, split.KG))
+        t_factor = time.perf_counter()
+        # One thread: the block solve, a little faster than column by column.
+        solve_n, solve_g = (_column_solver(lu, pool) if threads > 1 else lu.solve for lu in (lu_n, lu_g))
+        normals, k, rel, converged = _iterate(split, solve_n, solve_g, alpha0=alpha0, alpha1=alpha1, r0=r0, r1=r1,
+                                              max_iterations=max_iterations, tolerance=tolerance,
+                                              on_iteration=on_iteration, check_cancel=check_cancel)
     t_end = time.perf_counter()
     return TGVResult(
         normals=normals[inv],
@@ -253,16 +264,23 @@ def _assemble(vertices, faces, topo: FaceTopology, *, r0: float, r1: float) -> _
                       LamT_L=(Lam.T @ L0).tocsr(), KN=KN, KG=KG, area=area, n0=n0)
 
 
-def _factor(split: _Splitting):
+def _factor(matrix: sp.csc_matrix):
     # Both matrices are fixed (symmetric positive definite): factor once, reuse every iteration.
     # Minimum degree on A^T + A, symmetric mode (diagonal pivots): about half the fill of COLAMD.
-    opts = {"SymmetricMode": True}
-    lu_n = spla.splu(split.KN, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=opts)
-    lu_g = spla.splu(split.KG, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=opts)
-    return lu_n, lu_g
+    return spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
-def _iterate(split: _Splitting, lu_n, lu_g, *, alpha0, alpha1, r0, r1, max_iterations, tolerance,
+def _column_solver(lu, pool: ThreadPoolExecutor) -> Callable[[np.ndarray], np.ndarray]:
+    """solve(rhs (k, c)) -> (k, c): the factor's solve, one column per task of `pool`."""
+
+    def solve(rhs: np.ndarray) -> np.ndarray:
+        columns = pool.map(lambda c: lu.solve(np.ascontiguousarray(rhs[:, c])), range(rhs.shape[1]))
+        return np.column_stack(list(columns))
+
+    return solve
+
+
+def _iterate(split: _Splitting, solve_n, solve_g, *, alpha0, alpha1, r0, r1, max_iterations, tolerance,
              on_iteration, check_cancel):
     """The augmented-Lagrangian iterations: (normals (m, 3), iterations, relative change, converged)."""
     D, Gam, Lam = split.D, split.Gam, split.Lam
@@ -280,13 +298,13 @@ def _iterate(split: _Splitting, lu_n, lu_g, *, alpha0, alpha1, r0, r1, max_itera
     k = 0
     for k in range(1, max_iterations + 1):
         # 1. normal subproblem, then the unit-length constraint by projection
-        N_new = lu_n.solve(fidN + split.DT_L @ (r1 * (Gam @ G + P) + lamP))
+        N_new = solve_n(fidN + split.DT_L @ (r1 * (Gam @ G + P) + lamP))
         nrm = np.linalg.norm(N_new, axis=1)
         N_new = N_new / np.where(nrm > 0, nrm, 1.0)[:, None]
         N_new[nrm == 0] = N[nrm == 0]
         DN = D @ N_new
         # 2. auxiliary subproblem
-        G = lu_g.solve(split.GamT_L @ (r1 * (DN - P) - lamP) + split.LamT_L @ (r0 * Q + lamQ))
+        G = solve_g(split.GamT_L @ (r1 * (DN - P) - lamP) + split.LamT_L @ (r0 * Q + lamQ))
         AX1 = DN - Gam @ G
         AX0 = Lam @ G
         # 3. closed-form shrinkage; Q_e is the 3x3 tensor (ambient axis, component): Frobenius
