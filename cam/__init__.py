@@ -54,13 +54,14 @@ def progress_between(progress: Progress | None, start: float, end: float) -> Pro
     return report
 
 
-def progress_labelled(progress: Progress | None, start: float, end: float, label: str) -> Progress:
-    """`progress_between` for a sub-step whose messages follow `label` ("label: message")."""
+def progress_labelled(progress: Progress | None, start: float, end: float, label: str, *,
+                      sep: str = ": ") -> Progress:
+    """`progress_between` for a sub-step whose messages follow `label` (label, `sep`, message)."""
 
     def report(fraction: float, message: str | None = None) -> None:
         if progress is not None:
             progress(start + (end - start) * min(max(float(fraction), 0.0), 1.0),
-                     f"{label}: {message}" if message else label)
+                     f"{label}{sep}{message}" if message else label)
 
     return report
 

@@ -227,7 +227,7 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
         return _level_runs(grid, part, zs[k], steep_cos=steep_cos, region=region, near=None, near_mm=0)
 
     found = map_forked(level_runs, len(zs), processes=processes, check_cancel=check_cancel,
-                       progress=progress_labelled(report, 0.1, 0.5, f"waterline: {len(zs)} levels"))
+                       progress=progress_labelled(report, 0.1, 0.5, "waterline level", sep=" "))
     levels = dict(zip(zs, found))
     resolution = spacing / 2**BISECT_ROUNDS
     for split in range(max_splits + 1):
@@ -255,9 +255,8 @@ def waterline_passes(part: SetupPart, *, bounds: tuple[float, float, float, floa
         return _follow_walls(part, runs, z, chord_mm=chord_mm, spacing=spacing, lift_mm=0.5 * chord_mm)
 
     passes, chord = [], resolution
-    label = f"waterline passes along the walls: {len(ordered)} levels"
     done = map_forked(followed, len(ordered), processes=processes, check_cancel=check_cancel,
-                      progress=progress_labelled(report, 0.7, 1.0, label))
+                      progress=progress_labelled(report, 0.7, 1.0, "waterline passes along the walls: level", sep=" "))
     for (z, _), (runs, dev) in zip(ordered, done):
         chord = max(chord, dev)
         passes += [merge_straight(np.column_stack([xy, np.full(len(xy), z)])) for xy in runs]
