@@ -375,9 +375,9 @@ def _box_bounds(points, key, lo, hi, starts, out):
             g0 = max(max(lo[b, 0] - x, x - hi[b, 0]), 0.0)
             g1 = max(max(lo[b, 1] - y, y - hi[b, 1]), 0.0)
             g2 = max(max(lo[b, 2] - z, z - hi[b, 2]), 0.0)
-            # In the order numpy's einsum sums the three products (first and last, then the middle one), so
-            # that the bounds, and the pieces they prune, are those of the numpy code this replaced.
-            d = (g0 * g0 + g2 * g2) + g1 * g1
+            # Summed as numpy's einsum sums three products, so that the bounds, and the pieces they prune, are
+            # those of the numpy code this replaced.
+            d = dot3(g0, g1, g2, g0, g1, g2)
             if d < best:
                 best = d
                 if d == 0.0:
