@@ -50,6 +50,14 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from cam import CheckCancel
+from cam.denoise._tgvkernel import (
+    CSR,
+    edge_updates,
+    jump_rhs,
+    matvec,
+    normal_rhs,
+    residual_jumps,
+)
 
 __all__ = ["FaceTopology", "TGVResult", "face_topology", "tgv_filter_normals"]
 
@@ -282,9 +290,14 @@ def _column_solver(lu, pool: ThreadPoolExecutor) -> Callable[[np.ndarray], np.nd
 
 def _iterate(split: _Splitting, solve_n, solve_g, *, alpha0, alpha1, r0, r1, max_iterations, tolerance,
              on_iteration, check_cancel):
-    """The augmented-Lagrangian iterations: (normals (m, 3), iterations, relative change, converged)."""
-    D, Gam, Lam = split.D, split.Gam, split.Lam
-    E, m = D.shape
+    """The augmented-Lagrangian iterations: (normals (m, 3), iterations, relative change, converged).
+
+    The products and the edge updates are compiled loops (`cam.denoise._tgvkernel`), each row's arithmetic
+    that of the numpy expressions in the comments, in the same order.
+    """
+    D, Gam, Lam = CSR(split.D), CSR(split.Gam), CSR(split.Lam)
+    DT_L, GamT_L, LamT_L = CSR(split.DT_L), CSR(split.GamT_L), CSR(split.LamT_L)
+    E, m = split.D.shape
     N = split.n0.copy()
     fidN = split.area[:, None] * split.n0
     G = np.zeros((2 * m, 3))  # column c: component c; rows [t1 derivative (m), t2 derivative (m)]
@@ -294,25 +307,22 @@ def _iterate(split: _Splitting, solve_n, solve_g, *, alpha0, alpha1, r0, r1, max
     Q = np.zeros((3 * E, 3))  # rows (edge, ambient axis), columns: normal component
     lamP = np.zeros_like(P)
     lamQ = np.zeros_like(Q)
+    W = np.zeros_like(Q)  # r0 Q + lamQ
     rel = float("inf")
     k = 0
     for k in range(1, max_iterations + 1):
-        # 1. normal subproblem, then the unit-length constraint by projection
-        N_new = solve_n(fidN + split.DT_L @ (r1 * (Gam @ G + P) + lamP))
+        # 1. normal subproblem: solve fidN + D^T L (r1 (Gam G + P) + lamP), then |N| = 1 by projection
+        N_new = solve_n(normal_rhs(Gam, DT_L, G, P, lamP, fidN, r1))
         nrm = np.linalg.norm(N_new, axis=1)
         N_new = N_new / np.where(nrm > 0, nrm, 1.0)[:, None]
         N_new[nrm == 0] = N[nrm == 0]
-        DN = D @ N_new
-        # 2. auxiliary subproblem
-        G = solve_g(split.GamT_L @ (r1 * (DN - P) - lamP) + split.LamT_L @ (r0 * Q + lamQ))
-        AX1 = DN - Gam @ G
-        AX0 = Lam @ G
-        # 3. closed-form shrinkage; Q_e is the 3x3 tensor (ambient axis, component): Frobenius
-        P = _shrink(AX1 - lamP / r1, alpha1 / r1)
-        Q = _shrink((AX0 - lamQ / r0).reshape(E, 9), alpha0 / r0).reshape(3 * E, 3)
-        # 4. multipliers
-        lamP += r1 * (P - AX1)
-        lamQ += r0 * (Q - AX0)
+        DN = matvec(D, N_new)
+        # 2. auxiliary subproblem: solve Gam^T L (r1 (DN - P) - lamP) + Lam^T L (r0 Q + lamQ)
+        G = np.ascontiguousarray(solve_g(jump_rhs(GamT_L, LamT_L, DN, P, lamP, W, r1)))
+        # 3. AX1 = DN - Gam G, AX0 = Lam G; closed-form shrinkage of P and of Q (each edge's 3x3 tensor
+        # (ambient axis, component) as one vector: Frobenius); 4. the multipliers
+        AX1, AX0 = residual_jumps(Gam, Lam, G, DN)
+        edge_updates(AX1, AX0, P, Q, lamP, lamQ, W, r0=r0, r1=r1, alpha0=alpha0, alpha1=alpha1)
         dN = N_new - N
         rel = float(np.sqrt(np.einsum("ij,ij->", dN, dN) / max(np.einsum("ij,ij->", N, N), 1e-300)))
         N = N_new
@@ -372,10 +382,3 @@ def _operators(vertices, faces, topo: FaceTopology):
         (np.concatenate(v_list), (np.concatenate(r_list), np.concatenate(c_list))), shape=(3 * E, 3 * m)
     )
     return A1, A0, area, length, n0
-
-
-def _shrink(v: np.ndarray, thresh: np.ndarray | float) -> np.ndarray:
-    """Row-wise vectorial soft thresholding: max(0, 1 - t/|v|) v."""
-    nrm = np.linalg.norm(v, axis=1)
-    scale = np.maximum(0.0, 1.0 - thresh / np.maximum(nrm, 1e-300))
-    return v * scale[:, None]

@@ -1,0 +1,155 @@
+"""Compiled loops of the MeshTGV iteration (`cam.denoise.tgv`): sparse products and the edge updates.
+
+Each loop runs over rows (edges, faces) in parallel and does, row by row, the arithmetic the numpy and
+scipy code it replaced did, in the same order: a CSR product sums its row's terms in stored order starting
+from zero (scipy's `csr_matvecs`), and a row's length is summed as `np.linalg.norm(axis=1)` sums it
+(three terms in turn; nine as the first eight pairwise, then the ninth). So the normals are bit for bit
+those of the vectorised iteration, which `tests/cam/test_denoise_kernel.py` keeps as the oracle.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from cam.mesh._compiled import KERNEL_LOCK, norm3
+
+__all__ = ["CSR", "edge_updates", "jump_rhs", "matvec", "normal_rhs", "residual_jumps"]
+
+
+class CSR:
+    """A scipy CSR matrix's arrays, ready for the kernels (indices int64, data float64)."""
+
+    def __init__(self, matrix) -> None:
+        m = matrix.tocsr()
+        if not m.has_sorted_indices:
+            m = m.sorted_indices()
+        self.indptr = np.ascontiguousarray(m.indptr, dtype=np.int64)
+        self.indices = np.ascontiguousarray(m.indices, dtype=np.int64)
+        self.data = np.ascontiguousarray(m.data, dtype=np.float64)
+        self.shape = m.shape
+
+
+@njit(cache=True, inline="always")
+def _row(indptr, indices, data, x, i, c):
+    s = 0.0
+    for jj in range(indptr[i], indptr[i + 1]):
+        s += data[jj] * x[indices[jj], c]
+    return s
+
+
+@njit(cache=True, parallel=True)
+def _matvec(indptr, indices, data, x, out):
+    for i in prange(out.shape[0]):
+        for c in range(out.shape[1]):
+            out[i, c] = _row(indptr, indices, data, x, i, c)
+
+
+@njit(cache=True, parallel=True)
+def _normal_rhs(g_ptr, g_idx, g_val, dt_ptr, dt_idx, dt_val, G, P, lamP, fid, r1, t, out):
+    # t = r1 (Gam G + P) + lamP on the edges, then out = fid + (D^T L) t on the faces.
+    for e in prange(t.shape[0]):
+        for c in range(3):
+            t[e, c] = r1 * (_row(g_ptr, g_idx, g_val, G, e, c) + P[e, c]) + lamP[e, c]
+    for f in prange(out.shape[0]):
+        for c in range(3):
+            out[f, c] = fid[f, c] + _row(dt_ptr, dt_idx, dt_val, t, f, c)
+
+
+@njit(cache=True, parallel=True)
+def _jump_rhs(gt_ptr, gt_idx, gt_val, lt_ptr, lt_idx, lt_val, DN, P, lamP, W, r1, a, out):
+    # a = r1 (D N - P) - lamP on the edges; out = (Gam^T L) a + (Lam^T L) W, W = r0 Q + lamQ.
+    for e in prange(a.shape[0]):
+        for c in range(3):
+            a[e, c] = r1 * (DN[e, c] - P[e, c]) - lamP[e, c]
+    for i in prange(out.shape[0]):
+        for c in range(3):
+            out[i, c] = _row(gt_ptr, gt_idx, gt_val, a, i, c) + _row(lt_ptr, lt_idx, lt_val, W, i, c)
+
+
+@njit(cache=True, parallel=True)
+def _residual_jumps(g_ptr, g_idx, g_val, l_ptr, l_idx, l_val, G, DN, AX1, AX0):
+    # AX1 = D N - Gam G (edges), AX0 = Lam G (edge x axis rows).
+    for e in prange(AX1.shape[0]):
+        for c in range(3):
+            AX1[e, c] = DN[e, c] - _row(g_ptr, g_idx, g_val, G, e, c)
+    for i in prange(AX0.shape[0]):
+        for c in range(3):
+            AX0[i, c] = _row(l_ptr, l_idx, l_val, G, i, c)
+
+
+@njit(cache=True, inline="always")
+def _shrink_q(AX0, lamQ, Q, e, r0, t0):
+    # Q's 3x3 block of edge e as one vector of nine, shrunk; its length as np.linalg.norm(axis=1) sums a row
+    # of nine: the first eight pairwise, then the ninth.
+    i = 3 * e
+    v0, v1, v2 = AX0[i, 0] - lamQ[i, 0] / r0, AX0[i, 1] - lamQ[i, 1] / r0, AX0[i, 2] - lamQ[i, 2] / r0
+    v3, v4, v5 = AX0[i + 1, 0] - lamQ[i + 1, 0] / r0, AX0[i + 1, 1] - lamQ[i + 1, 1] / r0, AX0[i + 1, 2] - lamQ[i + 1, 2] / r0
+    v6, v7, v8 = AX0[i + 2, 0] - lamQ[i + 2, 0] / r0, AX0[i + 2, 1] - lamQ[i + 2, 1] / r0, AX0[i + 2, 2] - lamQ[i + 2, 2] / r0
+    length = math.sqrt((((v0 * v0 + v1 * v1) + (v2 * v2 + v3 * v3)) + ((v4 * v4 + v5 * v5) + (v6 * v6 + v7 * v7)))
+                       + v8 * v8)
+    scale = max(0.0, 1.0 - t0 / max(length, 1e-300))
+    Q[i, 0], Q[i, 1], Q[i, 2] = v0 * scale, v1 * scale, v2 * scale
+    Q[i + 1, 0], Q[i + 1, 1], Q[i + 1, 2] = v3 * scale, v4 * scale, v5 * scale
+    Q[i + 2, 0], Q[i + 2, 1], Q[i + 2, 2] = v6 * scale, v7 * scale, v8 * scale
+
+
+@njit(cache=True, parallel=True)
+def _edge_updates(AX1, AX0, P, Q, lamP, lamQ, W, r0, r1, t1, t0):
+    # The shrinkage of P (thresh t1) and Q (t0), the multipliers' step, and W = r0 Q + lamQ for the next
+    # auxiliary right-hand side.
+    for e in prange(AX1.shape[0]):
+        v0 = AX1[e, 0] - lamP[e, 0] / r1
+        v1 = AX1[e, 1] - lamP[e, 1] / r1
+        v2 = AX1[e, 2] - lamP[e, 2] / r1
+        scale = max(0.0, 1.0 - t1 / max(norm3(v0, v1, v2), 1e-300))
+        P[e, 0], P[e, 1], P[e, 2] = v0 * scale, v1 * scale, v2 * scale
+        for c in range(3):
+            lamP[e, c] += r1 * (P[e, c] - AX1[e, c])
+        _shrink_q(AX0, lamQ, Q, e, r0, t0)
+        for i in range(3 * e, 3 * e + 3):
+            for c in range(3):
+                lamQ[i, c] += r0 * (Q[i, c] - AX0[i, c])
+                W[i, c] = r0 * Q[i, c] + lamQ[i, c]
+
+
+def matvec(a: CSR, x: np.ndarray) -> np.ndarray:
+    """a @ x for x (cols, 3) float64: (rows, 3)."""
+    out = np.empty((a.shape[0], x.shape[1]))
+    with KERNEL_LOCK:
+        _matvec(a.indptr, a.indices, a.data, np.ascontiguousarray(x), out)
+    return out
+
+
+def normal_rhs(gam: CSR, dt_l: CSR, G, P, lamP, fid, r1: float) -> np.ndarray:
+    """fid + (D^T L) (r1 (Gam G + P) + lamP): the normal subproblem's right-hand side, (faces, 3)."""
+    t, out = np.empty_like(P), np.empty_like(fid)
+    with KERNEL_LOCK:
+        _normal_rhs(gam.indptr, gam.indices, gam.data, dt_l.indptr, dt_l.indices, dt_l.data, G, P, lamP, fid,
+                    float(r1), t, out)
+    return out
+
+
+def jump_rhs(gamt_l: CSR, lamt_l: CSR, DN, P, lamP, W, r1: float) -> np.ndarray:
+    """(Gam^T L) (r1 (DN - P) - lamP) + (Lam^T L) W: the auxiliary subproblem's right-hand side, (2 faces, 3)."""
+    a, out = np.empty_like(P), np.empty((gamt_l.shape[0], 3))
+    with KERNEL_LOCK:
+        _jump_rhs(gamt_l.indptr, gamt_l.indices, gamt_l.data, lamt_l.indptr, lamt_l.indices, lamt_l.data, DN, P,
+                  lamP, W, float(r1), a, out)
+    return out
+
+
+def residual_jumps(gam: CSR, lam: CSR, G, DN) -> tuple[np.ndarray, np.ndarray]:
+    """(DN - Gam G, Lam G): (edges, 3) and (3 edges, 3)."""
+    AX1, AX0 = np.empty_like(DN), np.empty((lam.shape[0], 3))
+    with KERNEL_LOCK:
+        _residual_jumps(gam.indptr, gam.indices, gam.data, lam.indptr, lam.indices, lam.data, G, DN, AX1, AX0)
+    return AX1, AX0
+
+
+def edge_updates(AX1, AX0, P, Q, lamP, lamQ, W, *, r0: float, r1: float, alpha0: float, alpha1: float) -> None:
+    """Shrink P and Q, step lamP and lamQ, and set W = r0 Q + lamQ, all in place."""
+    with KERNEL_LOCK:
+        _edge_updates(AX1, AX0, P, Q, lamP, lamQ, W, float(r0), float(r1), float(alpha1 / r1), float(alpha0 / r0))
