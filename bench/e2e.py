@@ -16,7 +16,8 @@ code is this working tree, uncommitted changes included (the report says if it c
 each). Targets (the issue): whole 50k job ≤ 120 s, fit ≤ 20 s, plan ≤ 30 s, verify ≤ 15 s, README example
 ≤ 30 s, peak RSS ≤ 2 GB at 1M points; on two cores.
 
-    python bench/e2e.py [part ...] [--runs N] [--base REV] [--profile] [--scaling] [--out-name NAME]
+    python bench/e2e.py [part ...] [--runs N] [--base REV] [--profile] [--scaling [--scaling-points 200000,1000000]
+        [--scaling-h 0.16]] [--out-name NAME]
         parts: fandisk-cloud, block-cloud, bracket, pockets, example (default: all, or none with --scaling);
         writes bench/results/NAME.md and NAME.json (NAME: e2e). Progress goes to stderr.
 """
@@ -367,7 +368,7 @@ def run_part(part: str, codes: dict[str, dict], runs: int, work: Path, profile: 
     return result
 
 
-def run_scaling(code: dict, work: Path) -> dict:
+def run_scaling(code: dict, work: Path, points_list=SCALING_POINTS, heights=SCALING_H) -> dict:
     """Fandisk ×10 clouds of each size at each scallop height, new code, one run each."""
     try:
         from part_coverage import ground_truth
@@ -379,9 +380,9 @@ def run_scaling(code: dict, work: Path) -> dict:
         log("scaling: skipped, Fandisk's ground truth is missing (../shared/data/fandisk_gt.obj)")
         return {"skipped": "Fandisk's ground truth is missing"}
     rows = []
-    for points in SCALING_POINTS:
+    for points in points_list:
         cloud = sample_cloud(*truth, points, work / f"fandisk-{points}.xyz")
-        for h in SCALING_H:
+        for h in heights:
             tag = f"scaling {points} h={h}"
             run = timed_run(cli_args(cloud, (f"toolpath.scallop_height_mm={h}",)), code, work / "scaling", tag)
             rows.append({"points": points, "h_mm": h, "run": run, "summary": summarise([run])})
@@ -561,6 +562,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--base", metavar="REV", help="also run git revision REV, interleaved")
     parser.add_argument("--profile", action="store_true", help="one more run of the new code under py-spy")
     parser.add_argument("--scaling", action="store_true", help="Fandisk clouds of 50k, 200k, 1M points")
+    parser.add_argument("--scaling-points", default=",".join(map(str, SCALING_POINTS)),
+                        help="the clouds' sizes for --scaling, comma-separated")
+    parser.add_argument("--scaling-h", default=",".join(map(str, SCALING_H)),
+                        help="the scallop heights (mm) for --scaling, comma-separated")
     parser.add_argument("--out-name", default="e2e", help="bench/results/NAME.md and .json")
     args = parser.parse_args(argv)
     unknown = [p for p in args.parts if p not in PARTS]
@@ -572,6 +577,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         parser.error("--profile needs py-spy on PATH")
     if not args.parts and not args.scaling:
         args.parts = list(PARTS)
+    try:
+        args.scaling_points = [int(x) for x in args.scaling_points.split(",")]
+        args.scaling_h = [float(x) for x in args.scaling_h.split(",")]
+    except ValueError as exc:
+        parser.error(f"--scaling-points and --scaling-h take comma-separated numbers ({exc})")
     return args
 
 
@@ -613,7 +623,7 @@ def main(argv: list[str]) -> None:
             report["parts"][part] = run_part(part, codes, args.runs, work, args.profile)
             save(report, args.out_name)
         if args.scaling:
-            report["scaling"] = run_scaling(codes["new"], work)
+            report["scaling"] = run_scaling(codes["new"], work, args.scaling_points, args.scaling_h)
             save(report, args.out_name)
     finally:
         if tree is not None:
