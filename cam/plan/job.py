@@ -171,7 +171,7 @@ def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach:
         done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
                             target_mm=h, processes=processes, check_cancel=check_cancel,
                             progress=progress_labelled(progress, k / len(parts), (k + 1) / len(parts),
-                                               f"setup {k + 1}: finishing on the mesh"))
+                                                       f"setup {k + 1}: finishing on the mesh"))
         passes[k].centres += done.passes
         passes[k].strategy += done.strategy
         left[target] = np.minimum(left[target], done.left)
@@ -239,8 +239,8 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     given_setups : list of Setup
         Setups to consider first (segment's).
     processes : int
-        Patches, waterline levels and candidate setups worked on at once, in forked processes (`cam.map_forked`; the programs
-        are the same).
+        Patches, waterline levels and candidate setups worked on at once, in forked processes
+        (`cam.map_forked`; the programs are the same).
     progress, check_cancel : callable, optional
         cam's callbacks (see `cam`).
 
@@ -313,7 +313,7 @@ def _rest(vertices, faces, samples: SurfaceSamples, setups: list[Setup], left: n
         done = finish_setup(part, points[target], normals[target], scallop_mm=scallop_mm, chord_mm=chord_mm,
                             target_mm=h, processes=processes, check_cancel=check_cancel,
                             progress=progress_labelled(progress, k / len(setups), (k + 1) / len(setups),
-                                               f"setup {k + 1}: rest ball"))
+                                                       f"setup {k + 1}: rest ball"))
         rest_left[target] = np.minimum(rest_left[target], done.left)
         finished = target.copy()
         finished[target] = done.left <= h
