@@ -20,14 +20,11 @@ __all__ = ["CSR", "edge_updates", "jump_rhs", "matvec", "normal_rhs", "residual_
 
 
 class CSR:
-    """A scipy CSR matrix's arrays, ready for the kernels (indices int64, data float64)."""
+    """A scipy CSR matrix's arrays for the kernels: its own (no copy), its indices in stored order."""
 
     def __init__(self, matrix) -> None:
         m = matrix.tocsr()
-        if not m.has_sorted_indices:
-            m = m.sorted_indices()
-        self.indptr = np.ascontiguousarray(m.indptr, dtype=np.int64)
-        self.indices = np.ascontiguousarray(m.indices, dtype=np.int64)
+        self.indptr, self.indices = np.ascontiguousarray(m.indptr), np.ascontiguousarray(m.indices)
         self.data = np.ascontiguousarray(m.data, dtype=np.float64)
         self.shape = m.shape
 
@@ -115,38 +112,37 @@ def _edge_updates(AX1, AX0, P, Q, lamP, lamQ, W, r0, r1, t1, t0):
                 W[i, c] = r0 * Q[i, c] + lamQ[i, c]
 
 
-def matvec(a: CSR, x: np.ndarray) -> np.ndarray:
-    """a @ x for x (cols, 3) float64: (rows, 3)."""
-    out = np.empty((a.shape[0], x.shape[1]))
+def matvec(a: CSR, x: np.ndarray, *, out: np.ndarray) -> np.ndarray:
+    """a @ x for x (cols, 3) float64, into out (rows, 3)."""
     with KERNEL_LOCK:
         _matvec(a.indptr, a.indices, a.data, np.ascontiguousarray(x), out)
     return out
 
 
-def normal_rhs(gam: CSR, dt_l: CSR, G, P, lamP, fid, r1: float) -> np.ndarray:
-    """fid + (D^T L) (r1 (Gam G + P) + lamP): the normal subproblem's right-hand side, (faces, 3)."""
-    t, out = np.empty_like(P), np.empty_like(fid)
+def normal_rhs(gam: CSR, dt_l: CSR, G, P, lamP, fid, r1: float, *, scratch: np.ndarray, out: np.ndarray
+               ) -> np.ndarray:
+    """fid + (D^T L) (r1 (Gam G + P) + lamP): the normal subproblem's right-hand side, into out (faces, 3);
+    scratch (edges, 3) takes the edge term."""
     with KERNEL_LOCK:
         _normal_rhs(gam.indptr, gam.indices, gam.data, dt_l.indptr, dt_l.indices, dt_l.data, G, P, lamP, fid,
-                    float(r1), t, out)
+                    float(r1), scratch, out)
     return out
 
 
-def jump_rhs(gamt_l: CSR, lamt_l: CSR, DN, P, lamP, W, r1: float) -> np.ndarray:
-    """(Gam^T L) (r1 (DN - P) - lamP) + (Lam^T L) W: the auxiliary subproblem's right-hand side, (2 faces, 3)."""
-    a, out = np.empty_like(P), np.empty((gamt_l.shape[0], 3))
+def jump_rhs(gamt_l: CSR, lamt_l: CSR, DN, P, lamP, W, r1: float, *, scratch: np.ndarray, out: np.ndarray
+             ) -> np.ndarray:
+    """(Gam^T L) (r1 (DN - P) - lamP) + (Lam^T L) W: the auxiliary subproblem's right-hand side, into out
+    (2 faces, 3); scratch (edges, 3) takes the edge term."""
     with KERNEL_LOCK:
         _jump_rhs(gamt_l.indptr, gamt_l.indices, gamt_l.data, lamt_l.indptr, lamt_l.indices, lamt_l.data, DN, P,
-                  lamP, W, float(r1), a, out)
+                  lamP, W, float(r1), scratch, out)
     return out
 
 
-def residual_jumps(gam: CSR, lam: CSR, G, DN) -> tuple[np.ndarray, np.ndarray]:
-    """(DN - Gam G, Lam G): (edges, 3) and (3 edges, 3)."""
-    AX1, AX0 = np.empty_like(DN), np.empty((lam.shape[0], 3))
+def residual_jumps(gam: CSR, lam: CSR, G, DN, *, out1: np.ndarray, out0: np.ndarray) -> None:
+    """out1 = DN - Gam G (edges, 3) and out0 = Lam G (3 edges, 3)."""
     with KERNEL_LOCK:
-        _residual_jumps(gam.indptr, gam.indices, gam.data, lam.indptr, lam.indices, lam.data, G, DN, AX1, AX0)
-    return AX1, AX0
+        _residual_jumps(gam.indptr, gam.indices, gam.data, lam.indptr, lam.indices, lam.data, G, DN, out1, out0)
 
 
 def edge_updates(AX1, AX0, P, Q, lamP, lamQ, W, *, r0: float, r1: float, alpha0: float, alpha1: float) -> None:
