@@ -30,8 +30,8 @@ Lagrangian with penalties r1, r0 (inner products weighted by edge length). Each 
     3. P, Q <- closed-form vectorial shrinkage (thresholds alpha1/r1, alpha0/r0);
     4. multipliers <- multipliers + r (split variable - operator);
 until the relative change of N is below the tolerance. The two system matrices never change: each
-is factored once (SuperLU, scipy.sparse.linalg.splu) and solved for the three normal components,
-side by side in threads where they are given.
+is factored once (SuperLU, scipy.sparse.linalg.splu) and solved for the three normal components
+at once.
 
 Inconsistently oriented neighbours are compared with a sign flip; edges with more than two faces are
 treated like boundary edges (no coupling across them).
@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -147,7 +146,6 @@ def tgv_filter_normals(
     tolerance: float,
     on_iteration: Callable[[int, float], None] | None = None,
     check_cancel: CheckCancel | None = None,
-    threads: int = 1,
 ) -> TGVResult:
     """Filter the face normals of a triangle mesh with MeshTGV.
 
@@ -172,10 +170,6 @@ def tgv_filter_normals(
         ``on_iteration(k, relative_change)``, called after outer iteration k.
     check_cancel : callable, optional
         Called after each outer iteration, before ``on_iteration``; it stops the work by raising.
-    threads : int
-        Threads for the sparse solves (SuperLU runs without the GIL): each solve's three right-hand
-        sides solved side by side. A column solved alone is bit for bit the same as in a block, so the
-        result does not depend on it.
 
     Returns
     -------
@@ -189,17 +183,11 @@ def tgv_filter_normals(
     faces, topo, inv = _renumber_faces(faces, topo)
     split = _assemble(vertices, faces, topo, r0=r0, r1=r1)
     t_setup = time.perf_counter()
-    # Factored here, not in a pool thread: glibc keeps what a thread's arena freed, and a 194k-face mesh's
-    # factors (about 1 GB) stayed resident for the rest of the job.
     lu_n, lu_g = _factor(split.KN), _factor(split.KG)
     t_factor = time.perf_counter()
-    threads = max(1, int(threads))
-    with ThreadPoolExecutor(threads) as pool:
-        # One thread: the block solve, a little faster than column by column.
-        solve_n, solve_g = (_column_solver(lu, pool) if threads > 1 else lu.solve for lu in (lu_n, lu_g))
-        normals, k, rel, converged = _iterate(split, solve_n, solve_g, alpha0=alpha0, alpha1=alpha1, r0=r0, r1=r1,
-                                              max_iterations=max_iterations, tolerance=tolerance,
-                                              on_iteration=on_iteration, check_cancel=check_cancel)
+    normals, k, rel, converged = _iterate(split, lu_n.solve, lu_g.solve, alpha0=alpha0, alpha1=alpha1, r0=r0, r1=r1,
+                                          max_iterations=max_iterations, tolerance=tolerance,
+                                          on_iteration=on_iteration, check_cancel=check_cancel)
     t_end = time.perf_counter()
     return TGVResult(
         normals=normals[inv],
@@ -277,16 +265,6 @@ def _factor(matrix: sp.csc_matrix):
     # Both matrices are fixed (symmetric positive definite): factor once, reuse every iteration.
     # Minimum degree on A^T + A, symmetric mode (diagonal pivots): about half the fill of COLAMD.
     return spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-
-
-def _column_solver(lu, pool: ThreadPoolExecutor) -> Callable[[np.ndarray], np.ndarray]:
-    """solve(rhs (k, c)) -> (k, c): the factor's solve, one column per task of `pool`."""
-
-    def solve(rhs: np.ndarray) -> np.ndarray:
-        columns = pool.map(lambda c: lu.solve(np.ascontiguousarray(rhs[:, c])), range(rhs.shape[1]))
-        return np.column_stack(list(columns))
-
-    return solve
 
 
 def _iterate(split: _Splitting, solve_n, solve_g, *, alpha0, alpha1, r0, r1, max_iterations, tolerance,

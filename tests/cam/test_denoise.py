@@ -288,12 +288,3 @@ def test_fandisk_beats_authors_bound():
     assert filtered < 2.2046, filtered
     assert mesh < 2.07, mesh
 
-
-def test_threads_give_the_same_mesh_bit_for_bit(noisy_cube, cube_result):
-    # The two systems are factored at once and each solve's three columns solved side by side; a column
-    # solved alone is the same as in a block, so the mesh is too.
-    _, f, noisy, _ = noisy_cube
-    threaded = denoise_mesh(noisy, f, threads=3)
-    np.testing.assert_array_equal(threaded.vertices, cube_result.vertices)
-    np.testing.assert_array_equal(threaded.face_normals, cube_result.face_normals)
-    assert threaded.iterations == cube_result.iterations
