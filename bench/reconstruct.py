@@ -396,20 +396,6 @@ def _prism(outline, length):
     return Manifold.extrude(CrossSection([outline]), length).rotate([90.0, 0.0, 0.0]).translate([0.0, length, 0.0])
 
 
-def _rounded_box(size, corner, floor, segments=48):
-    """A box whose vertical edges are rounded by ``corner`` and bottom edges by ``floor`` (a pocket tool)."""
-    from manifold3d import Manifold
-
-    sx, sy, sz = size
-    parts = []
-    for x in (corner, sx - corner):
-        for y in (corner, sy - corner):
-            if floor > 0:
-                parts.append(Manifold.sphere(floor, segments).translate([x, y, floor]))
-            parts.append(Manifold.cylinder(sz - floor, corner, circular_segments=segments).translate([x, y, floor]))
-    return Manifold.batch_hull(parts)
-
-
 def part_bracket_two_bosses():
     """A 70 x 40 L-bracket, 6 mm walls, two 8 mm holes in 4 mm bosses on the base and a slot in the upright."""
     from manifold3d import Manifold
@@ -425,6 +411,7 @@ def part_bracket_two_bosses():
 def part_pockets_fillet():
     """A 60 x 40 x 20 block with a 24 x 16 x 10 pocket filleted 3 mm and a 12 x 12 x 6 one with 1 mm corners."""
     from manifold3d import Manifold
+    from part_coverage import _rounded_box  # bench/ is on the path when a script runs
 
     block = Manifold.cube([60.0, 40.0, 20.0])
     p1 = _rounded_box((24.0, 16.0, 12.0), 3.0, 3.0).translate([6.0, 12.0, 10.0])
