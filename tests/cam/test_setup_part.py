@@ -64,3 +64,17 @@ def test_a_piece_whose_triangles_face_inwards_is_still_met_from_above():
     faces = np.vstack([box.faces, small.faces[:, ::-1] + len(box.vertices)])  # the small box inside out
     part = setup_part(vertices, faces, Setup(1, np.eye(3), np.zeros(3)), tool_radius_mm=R)
     np.testing.assert_allclose(part.drop(np.array([[-8.0, 5.0], [-8.5, 4.5]])), [2.0 + R, 2.0 + R])
+
+
+def test_a_part_made_for_reach_alone_reaches_the_same_and_refuses_closest_points(part):
+    # The setup choice asks reach of a dozen candidate axes; a part made without the closest-point index
+    # answers it the same, and says so when asked for what needs that index.
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    box.apply_translation((5.0, 5.0, 5.0))
+    lean = setup_part(box.vertices, box.faces, Setup(1, np.eye(3), np.zeros(3)), tool_radius_mm=R, closest=False)
+    points, face = trimesh.sample.sample_surface_even(box, 2000, seed=1)
+    normals = box.face_normals[face]
+    np.testing.assert_array_equal(lean.reaches(points, normals), part.reaches(points, normals))
+    assert part.reaches(points, normals).any() and not part.reaches(points, normals).all()
+    with pytest.raises(ValueError, match="reach alone"):
+        lean.nearest(np.array([[5.0, 5.0, 20.0]]))
