@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam import CheckCancel, GeometryError, Progress, map_forked
+from cam import CheckCancel, GeometryError, Progress, map_forked, progress_labelled
 from cam.fit.borders import find_kinks, fit_boundary_curves, seed_bordered_net
 from cam.fit.boundary import SIDES, Layout, boundary_layout, side_vertices
 from cam.fit.crease import edge_keys, is_sharp_polyline, vertex_positions
@@ -175,7 +175,7 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
                            params.tolerance_mm, processes=processes, check_cancel=cancel,
-                           progress=_labelled(report, 0.92, 0.97, "measuring every mesh sample against the surfaces"))
+                           progress=progress_labelled(report, 0.92, 0.97, "measuring every mesh sample against the surfaces"))
     report(0.97, "reporting each patch: its errors, folds and creases")
     creases = problem.creases
     if creases is None:
@@ -300,16 +300,7 @@ class _Each:
             return fit_one(ks[i], cc, patch_progress)
 
         return map_forked(one, len(ks), processes=self.processes, check_cancel=self.cancel,
-                          progress=_labelled(self.report, start, end, label), item_progress=True)
-
-
-def _labelled(report: Progress, start: float, end: float, label: str) -> Progress:
-    """`report` for a step that takes `start`..`end` of it, its messages after `label`."""
-
-    def progress(fraction: float, message: str | None = None) -> None:
-        report(start + (end - start) * fraction, f"{label}: {message}" if message else label)
-
-    return progress
+                          progress=progress_labelled(self.report, start, end, label), item_progress=True)
 
 
 def _fit_free(problem: _Problem, fit_opts: dict, each: _Each) -> list[Refined]:
@@ -323,7 +314,7 @@ def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, each: _
     """The free fits, with those whose samples moved to or from a neighbour fitted again from where they were."""
     moved = sorted(_reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free],
                              problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel,
-                             progress=_labelled(each.report, 0.33, 0.35, "moving samples beyond a border to a "
+                             progress=progress_labelled(each.report, 0.33, 0.35, "moving samples beyond a border to a "
                                                 "neighbour that is closer")))
     refits = each.map(lambda k, cc, pr: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "check_cancel": cc,
                                                                                   "progress": pr}),

@@ -287,4 +287,3 @@ def test_fandisk_beats_authors_bound():
     # the MeshTGV authors' own figures: 2.2046 deg (filtered normals), 2.07 deg (their result mesh)
     assert filtered < 2.2046, filtered
     assert mesh < 2.07, mesh
-
