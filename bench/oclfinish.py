@@ -113,12 +113,17 @@ def waterline(surf: ocl.STLSurf, cutter: ocl.BallCutter, mesh: MeshIndex, top_z:
     return passes
 
 
-def ocl_program(vertices: np.ndarray, faces: np.ndarray, *, r: float, h: float) -> tuple[str, dict]:
-    """A finishing program for one setup (vertices already in its machine frame) and its pass counts."""
+def ocl_program(vertices: np.ndarray, faces: np.ndarray, *, r: float, h: float,
+                step_fraction: float = 1.0) -> tuple[str, dict]:
+    """A finishing program for one setup (vertices already in its machine frame) and its pass counts.
+
+    `step_fraction` scales the stepover and the z step below the flat-surface interval for h: a user
+    who finds scallops over h on slopes and in corners tightens them this way (the sweep of
+    bench/part_coverage.py, which compares path lengths at equal largest left)."""
     surf = _surface(vertices, faces)
     cutter = ocl.BallCutter(2.0 * r, 1000.0)
     mesh = mesh_index(vertices, faces)
-    step = 2.0 * np.sqrt(h * (2.0 * r - h))
+    step = step_fraction * 2.0 * np.sqrt(h * (2.0 * r - h))
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     bounds = (lo[0] - r, hi[0] + r, lo[1] - r, hi[1] + r)
     shallow = raster(surf, cutter, bounds, float(lo[2]), r, step)

@@ -14,11 +14,13 @@ smaller than the ball). The planner was tuned on the test shapes (box, pocket bo
 Fandisk; Block, both clouds and both CSG parts are held out. With `--rest`, the pockets part and Fandisk run
 again with `tool.rest_radius_mm = 1` (with --reuse, plan and verify only, on the first run's setups).
 
-    python bench/part_coverage.py [part ...] [--rest] [--reuse=DIR [--replan]]
+    python bench/part_coverage.py [part ...] [--rest] [--reuse=DIR [--replan]] [--ocl-sweep]
         parts: fandisk, block, fandisk-cloud, block-cloud, bracket, pockets (default: all; `pockets+rest`:
         that part's rest variant alone); --reuse keeps
         each part's pipeline output in DIR and checks it again instead of running the pipeline anew;
-        --replan runs plan and verify again on what is kept (a planner change, without a new fit)
+        --replan runs plan and verify again on what is kept (a planner change, without a new fit);
+        --ocl-sweep runs the OpenCAMLib baseline again at 0.8, 0.64, 0.5, 0.4, 0.32 of its stepover until it
+        finishes as much as ours with no larger largest left, for the path lengths at equal coverage
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ RESULTS = ROOT / "bench" / "results"
 R, H = 3.0, 0.16
 CLOUD_POINTS = 50_000
 HELD_OUT = {"block", "fandisk-cloud", "block-cloud", "bracket", "pockets"}
+SWEEP_FRACTIONS = (0.8, 0.64, 0.5, 0.4, 0.32)
 
 
 def _csg_mesh(solid) -> tuple[np.ndarray, np.ndarray]:
@@ -219,10 +222,11 @@ def _classes(points, reach, left, either) -> dict:
     return {"points": points[pick].round(3).tolist(), "class": cls[pick].tolist()}
 
 
-def run_part(part: str, *, rest: bool = False, reuse: Path | None = None, replanned: bool = False) -> dict | None:
+def run_part(part: str, *, rest: bool = False, reuse: Path | None = None, replanned: bool = False,
+             sweep: bool = False) -> dict | None:
     """One part through the pipeline and the check, with the baseline; `reuse`: a folder where the
     pipeline's output of an earlier run is kept (run again only when it is not there); `replanned`: run
-    plan and verify again on what is kept."""
+    plan and verify again on what is kept; `sweep`: the baseline again at smaller stepovers (_sweep)."""
     truth = ground_truth(part)
     if truth is None:
         return None
@@ -269,16 +273,40 @@ def run_part(part: str, *, rest: bool = False, reuse: Path | None = None, replan
         if rest:
             return row
         mesh = trimesh.load(out / "mesh.ply", process=False)
-        t0 = time.perf_counter()
-        baseline, counts = [], []
-        for k, s in enumerate(setups):
-            text, stats = ocl_program(_machine(s, np.asarray(mesh.vertices, float)), np.asarray(mesh.faces), r=R, h=H)
-            baseline.append((k, text, R))
-            counts.append(stats)
-        row["ocl_seconds"] = time.perf_counter() - t0
-        row["ocl"] = check(vertices, faces, setups, baseline, spacing=spacing)
-        row["ocl"]["passes"] = counts
+        row["ocl"], row["ocl_seconds"] = _baseline(mesh, truth, setups, spacing, 1.0)
+        if sweep:
+            row["ocl_sweep"] = _sweep(mesh, truth, setups, spacing, row["ours"], row["ocl"], row["ocl_seconds"])
     return row
+
+
+def _baseline(mesh, truth, setups: list[dict], spacing: float, fraction: float) -> tuple[dict, float]:
+    """The OpenCAMLib program on every setup at `fraction` of the flat stepover, checked on the true part."""
+    t0 = time.perf_counter()
+    programs, counts = [], []
+    for k, s in enumerate(setups):
+        text, stats = ocl_program(_machine(s, np.asarray(mesh.vertices, float)), np.asarray(mesh.faces), r=R, h=H,
+                                  step_fraction=fraction)
+        programs.append((k, text, R))
+        counts.append(stats)
+    seconds = time.perf_counter() - t0
+    result = check(*truth, setups, programs, spacing=spacing)
+    result["passes"] = counts
+    return result, seconds
+
+
+def _sweep(mesh, truth, setups, spacing, ours: dict, first: dict, first_seconds: float) -> list[dict]:
+    """The baseline at ever smaller stepovers until it leaves no more than our program does: finished share
+    at least ours and largest left at most ours (the path-length comparison at equal coverage and equal
+    largest left), or until SWEEP_FRACTIONS runs out."""
+    rows = []
+    for fraction in (1.0, *SWEEP_FRACTIONS):
+        result, seconds = (first, first_seconds) if fraction == 1.0 else _baseline(mesh, truth, setups, spacing, fraction)
+        rows.append({"fraction": fraction, "seconds": seconds, **{k: v for k, v in result.items() if k != "classes"}})
+        print(f"  OpenCAMLib at {fraction:.2f} of the stepover: finished {result['finished']:.4f}, largest left "
+              f"{result['largest_left']:.3f} mm, path {result['length'] / 1000:.2f} m", flush=True)
+        if result["finished"] >= ours["finished"] and result["largest_left"] <= ours["largest_left"]:
+            break
+    return rows
 
 
 def picture(row: dict, path: Path) -> None:
@@ -321,7 +349,7 @@ def main(argv: list[str]) -> None:
             + ([(p, True) for p in ("pockets", "fandisk")] if rest else []))
     for part, with_rest in jobs:
         print(f"{part}{' (rest)' if with_rest else ''} ...", flush=True)
-        row = run_part(part, rest=with_rest, reuse=reuse, replanned="--replan" in argv)
+        row = run_part(part, rest=with_rest, reuse=reuse, replanned="--replan" in argv, sweep="--ocl-sweep" in argv)
         if row is None:
             print(f"  skipped: {part} needs ../shared/data", flush=True)
             continue
@@ -362,6 +390,26 @@ def _row(key: str, row: dict) -> list[str]:
     return out
 
 
+SWEEP_HEAD = ("Path length at equal coverage and equal largest left (`--ocl-sweep`): the OpenCAMLib program again "
+              "at smaller stepovers (a fraction of the flat-surface interval, its raster and its waterline z step "
+              "alike) until it finishes at least the share of the reachable that ours does and leaves no more than "
+              "our largest left. `path ratio`: the baseline's cutting path over ours.\n\n"
+              "| part | program | stepover fraction | finished of reachable | largest left mm | p99 left mm | path m | "
+              "path ratio | seconds |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n")
+
+
+def _sweep_rows(key: str, row: dict) -> str:
+    ours = row["ours"]
+    lines = [(f"| {key} | ours | — | {_pct(ours['finished'])} | {ours['largest_left']:.3f} | {ours['p99_left']:.3f} | "
+              f"{ours['length'] / 1000:.2f} | 1.00 | — |")]
+    for s in row["ocl_sweep"]:
+        equal = s["finished"] >= ours["finished"] and s["largest_left"] <= ours["largest_left"]
+        lines.append(f"| {key} | OpenCAMLib{' (equal)' if equal else ''} | {s['fraction']:.2f} | {_pct(s['finished'])} | "
+                     f"{s['largest_left']:.3f} | {s['p99_left']:.3f} | {s['length'] / 1000:.2f} | "
+                     f"{s['length'] / max(ours['length'], 1e-300):.2f} | {s['seconds']:.0f} |")
+    return "\n".join(lines)
+
+
 def write_report(done: dict, path: Path) -> None:
     """The markdown table of every part run so far, ours and the baseline, with the stage times."""
     head = ("| part | corpus | program | reachable | finished of reachable | largest left mm | p99 left mm | over h "
@@ -381,6 +429,7 @@ def write_report(done: dict, path: Path) -> None:
                  else row["stages"].get(s, ("—",))[0] for s in ("ingest", "reconstruct", "denoise", "remesh",
                                                                  "segment", "fit", "plan", "verify")]
         stages.append(f"| {key} | " + " | ".join(cells) + f" | {row.get('verify', {}).get('summary', '—')} |")
+    sweeps = [_sweep_rows(key, row) for key, row in rows.items() if row.get("ocl_sweep")]
     keep = ""
     if path.exists() and "## Notes" in path.read_text():
         keep = path.read_text()[path.read_text().index("## Notes"):]
@@ -397,6 +446,7 @@ def write_report(done: dict, path: Path) -> None:
             + ("With a rest ball of r = 1 mm (`tool.rest_radius_mm = 1`):\n\n"
                "| part | unreachable by the main ball | unreachable by both | finished of what either reaches | gouge mm |\n"
                "|---|---:|---:|---:|---:|\n" + "\n".join(rest) + "\n\n" if rest else "")
+            + (SWEEP_HEAD + "\n".join(sweeps) + "\n\n" if sweeps else "")
             + "Pictures: `coverage-<part>.png` (ours left, OpenCAMLib right).\n\n" + keep)
     path.write_text(text)
 
