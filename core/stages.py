@@ -94,7 +94,7 @@ STAGES: tuple[StageSpec, ...] = (
     ),
     StageSpec(
         name="fit",
-        version="3",
+        version="4",
         inputs=("quads.obj", "patches.json", "mesh.ply"),
         outputs=("surfaces.json", "surfaces.igs", "surfaces.step"),
         param_groups=("fit",),  # with its tolerance resolved (JobParams.effective)

@@ -42,6 +42,12 @@ from cam.spline.knots import lattice_knots, merge_knots
 
 __all__ = ["PatchFit", "FitResult", "fit_patches"]
 
+# A free fit is refined for, and judged on, what lies within this many quads of its sides: only its
+# borders are used (the boundary curves' data along smooth borders), and the bordered fit starts from
+# the unrefined one. On a 50k-point Fandisk cloud the free fits' rounds, refining for their insides
+# too, took 48 % of the time spent fitting surfaces.
+FREE_BAND_QUADS = 1.0
+
 
 def fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: np.ndarray, mesh_faces: np.ndarray,
                 params: FitParams, *, other_quads: np.ndarray | None = None, sharp_edges: np.ndarray | None = None,
@@ -278,7 +284,7 @@ def _fit_free_patch(problem: _Problem, k: int, start: SurfaceFit | None, fit_opt
         kw = dict(knots_u=start.knots_u, knots_v=start.knots_v, control_points=start.control_points)
     pts, nrm, u, v = _patch_data(problem, k)
     return fit_refined(pts, nrm, u, v, lengths_mm=problem.lengths[k], anchors=problem.anchors[k],
-                       pull_sides=problem.pull[k], **kw, **fit_opts)
+                       pull_sides=problem.pull[k], judge_band=FREE_BAND_QUADS, **kw, **fit_opts)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ their knot vectors never creates near-duplicates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -122,7 +122,7 @@ def border_mask(shape: tuple[int, int]) -> np.ndarray:
 def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
                 knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
                 tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, min_gain: float = 0.1,
-                border_band: float = 0.5, check_cancel: CheckCancel | None = None, progress: Progress | None = None,
+                min_drop: float = 0.01, border_band: float = 0.5, judge_band: float | None = None, check_cancel: CheckCancel | None = None, progress: Progress | None = None,
                 **options) -> Refined:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
@@ -133,7 +133,10 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     quarter of the domain's narrower side, so a patch one quad wide still refines in its middle)
     unless farther from the mesh than the border is. Two rounds in a row that each lower the error
     beyond the tolerance (`SurfaceFit.excess`) of the best fit so far by less than the fraction
-    `min_gain` end the refinement.
+    `min_gain` end the refinement; so does one round that lowers the largest distance by less than the
+    fraction `min_drop`: new spans round the worst point took nothing off it, and the next round's four
+    times as many control points would not either (a fold of the mesh, a crease through the patch, a
+    fixed border's own error).
 
     Parameters
     ----------
@@ -156,8 +159,14 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
         Spans are never halved below this, grid-index units.
     min_gain : float
         See above: the fraction a round must gain.
+    min_drop : float
+        See above: the fraction a round must take off the largest distance.
     border_band : float
         See above, grid-index units.
+    judge_band : float or None
+        Only the samples and surface points within this many grid-index units of the domain's sides (at
+        most a quarter of its narrower side, as `border_band`) are refined for and judged: a free fit
+        only places the borders the boundary curves are fitted to. None: all of them.
     check_cancel : callable or None
         Called before every round and every step of `fit_surface`; it raises to stop the fit.
     progress : callable or None
@@ -185,10 +194,11 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     peaks = _peaks(mesh, fit)
     # `best` is what is returned; `fit` what the next round refines (after a weak round, its refit).
     best, best_peaks = fit, peaks
-    while rounds < max_refinements and max(fit.max_error, peaks[2].max(initial=0.0)) > tolerance_mm:
+    judged = (lambda f: f) if judge_band is None else (lambda f: _near_sides(f, judge_band))
+    while rounds < max_refinements and max(judged(fit).max_error, peaks[2].max(initial=0.0)) > tolerance_mm:
         if check_cancel is not None:
             check_cancel()
-        tu, tv = _split_targets(fit, peaks, tolerance_mm=tolerance_mm, fix_border=fix_border,
+        tu, tv = _split_targets(judged(fit), peaks, tolerance_mm=tolerance_mm, fix_border=fix_border,
                                 border_band=border_band, min_span=min_span)
         if tu.size == fit.knots_u.size and tv.size == fit.knots_v.size:
             break
@@ -197,12 +207,12 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                              check_cancel=check_cancel, progress=_round_progress(progress, rounds, max_refinements),
                              **options)
         refit_peaks = _peaks(mesh, refit)
-        improved, enough = _judge_round(refit, refit_peaks, best, best_peaks, tolerance_mm=tolerance_mm,
-                                        min_gain=min_gain)
+        improved, enough = _judge_round(judged(refit), refit_peaks, judged(best), best_peaks,
+                                        tolerance_mm=tolerance_mm, min_gain=min_gain)
         if improved:
             best, best_peaks = refit, refit_peaks
         weak = 0 if enough else weak + 1
-        if weak >= 2:
+        if weak >= 2 or _stalled(judged(refit), refit_peaks, judged(fit), peaks, min_drop=min_drop):
             break
         fit, peaks = refit, refit_peaks
     return Refined(best, rounds, first, best_peaks)
@@ -271,6 +281,24 @@ def _judge_round(refit: SurfaceFit, refit_peaks, best: SurfaceFit, best_peaks, *
     # first split (a bump a tenth of its patch wide: 2 %, then within tolerance two rounds on).
     enough = improved and _improves(refit, refit_peaks, best, best_peaks, tolerance_mm, by=min_gain)
     return improved, enough
+
+
+def _near_sides(fit: SurfaceFit, band: float) -> SurfaceFit:
+    """The fit with the distances of its samples and surface points farther than `band` from every side set
+    to zero, so that what is judged and refined is along its sides alone."""
+    near = ~_inside(fit, fit.u, fit.v, band)
+    near_surface = ~_inside(fit, fit.surface_u, fit.surface_v, band)
+    return replace(fit, distance=np.where(near, fit.distance, 0.0),
+                   surface_distance=np.where(near_surface, fit.surface_distance, 0.0))
+
+
+def _stalled(refit: SurfaceFit, refit_peaks, fit: SurfaceFit, peaks, *, min_drop: float) -> bool:
+    """Whether the round from `fit` to `refit` lowered the largest distance, peaks counted, by less than the
+    fraction `min_drop`."""
+    def largest(f, p):
+        return max(f.max_error, float(p[2].max(initial=0.0)))
+
+    return largest(refit, refit_peaks) > largest(fit, peaks) * (1.0 - min_drop)
 
 
 def _peaks(mesh, fit: SurfaceFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

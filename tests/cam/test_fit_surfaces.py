@@ -433,3 +433,54 @@ def test_patches_fitted_in_two_processes_are_bit_for_bit_those_of_one():
         assert np.array_equal(a.surface.knots_u, b.surface.knots_u) and np.array_equal(a.surface.knots_v, b.surface.knots_v)
         assert (a.max_error_mm, a.mean_error_mm, a.refinements) == (b.max_error_mm, b.mean_error_mm, b.refinements)
     assert one.max_gap_mm == two.max_gap_mm
+
+
+def _refined_on_plane_with_raised_border(**options):
+    """A 4 mm plane fitted inside fixed borders, the border along u = 0 held 0.1 mm above it: what no
+    refinement inside can take off."""
+    from cam.fit.refine import fit_refined
+
+    L = 4.0
+    MV, MF = triangle_mesh(lambda s, t: np.stack([s, t, np.zeros_like(s)], -1), np.linspace(0, L, 41),
+                           np.linspace(0, L, 41))
+    S, T = np.meshgrid(np.linspace(0, L, 4), np.linspace(0, L, 4), indexing="ij")
+    cp = np.stack([S, T, np.zeros_like(S)], -1)
+    cp[0, :, 2] = 0.1
+    knots = np.array([0.0] * 4 + [1.0] * 4)
+    return fit_refined(MV, np.tile([0.0, 0.0, 1.0], (len(MV), 1)), MV[:, 0] / L, MV[:, 1] / L, knots_u=knots,
+                       knots_v=knots, control_points=cp, fix_border=True, tolerance_mm=0.032, lengths_mm=(L, L),
+                       mesh=mesh_index(MV, MF), **options)
+
+
+def test_a_round_that_takes_nothing_off_the_largest_distance_ends_the_refinement():
+    # The largest distance is the fixed border's own: every round leaves it at 0.1 mm. Without the rule
+    # (min_drop=0) two more rounds, each with more control points, are spent on it.
+    done = _refined_on_plane_with_raised_border()
+    spent = _refined_on_plane_with_raised_border(min_drop=0.0)
+    assert done.unrefined.max_error == pytest.approx(0.1, abs=1e-9)
+    assert done.rounds == 1 and spent.rounds == 3
+    assert done.fit.max_error == pytest.approx(spent.fit.max_error, abs=1e-9)
+    assert spent.fit.control_points.size > done.fit.control_points.size
+
+
+def test_a_free_fit_judged_along_its_sides_is_not_refined_for_its_inside():
+    # A free fit only places its borders (`cam.fit.patches.FREE_BAND_QUADS`): a bump in the middle of a
+    # 16 x 10 quad patch, far from every side, is refined for without the band and left alone with it.
+    from cam.fit.refine import fit_refined
+
+    MV, MF = triangle_mesh(bump(1.0, 8.0, 5.0, 0.9), np.linspace(0, 16, 97), np.linspace(0, 10, 61))
+    ku = np.r_[[0.0] * 3, np.arange(0, 16.1, 4.0), [16.0] * 3]
+    kv = np.r_[[0.0] * 3, np.arange(0, 10.1, 2.5), [10.0] * 3]
+    S, T = np.meshgrid(np.linspace(0, 16, 7), np.linspace(0, 10, 7), indexing="ij")
+    start = np.stack([S, T, np.zeros_like(S)], -1)
+    index = mesh_index(MV, MF)
+
+    def fit(band):
+        return fit_refined(MV, np.tile([0.0, 0.0, 1.0], (len(MV), 1)), MV[:, 0], MV[:, 1], knots_u=ku, knots_v=kv,
+                           control_points=start, tolerance_mm=0.032, lengths_mm=(16.0, 10.0), mesh=index,
+                           judge_band=band)
+
+    everywhere, sides = fit(None), fit(1.0)
+    assert everywhere.fit.max_error < 0.5 * everywhere.unrefined.max_error
+    assert everywhere.fit.control_points.size > start.size
+    assert sides.fit is sides.unrefined
