@@ -34,12 +34,16 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
+ROOT = Path(__file__).resolve().parents[1]
+# This checkout's code, not an installed one: oclfinish imports cam, and a bench run from a git worktree
+# must measure the worktree's.
+sys.path.insert(0, str(ROOT))
+
 from machine_info import describe_machine  # bench/ is on the path when a script runs
 from oclfinish import ocl_program
 from partcheck import left_and_gouge, reachable, read_moves, sample_mesh
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 DATA = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "bench" / "results"
 R, H = 3.0, 0.16
