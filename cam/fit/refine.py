@@ -122,8 +122,8 @@ def border_mask(shape: tuple[int, int]) -> np.ndarray:
 def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray, *, knots_u: np.ndarray,
                 knots_v: np.ndarray, control_points: np.ndarray | None = None, fix_border: bool = False,
                 tolerance_mm: float, max_refinements: int = 3, min_span: float = 0.125, min_gain: float = 0.1,
-                min_drop: float = 0.01, border_band: float = 0.5, judge_band: float | None = None, check_cancel: CheckCancel | None = None, progress: Progress | None = None,
-                **options) -> Refined:
+                min_drop: float = 0.01, border_band: float = 0.5, judge_band: float | None = None,
+                check_cancel: CheckCancel | None = None, progress: Progress | None = None, **options) -> Refined:
     """`fit_surface`, then up to `max_refinements` rounds of halving the spans with samples beyond tolerance.
 
     Spans are halved where samples are beyond the tolerance, and where the surface is (with a `mesh`
