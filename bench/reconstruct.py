@@ -380,9 +380,6 @@ def write_results(args, rows, mlp_row, pictures):
 
 # --- corpus (issue 36): parts -----------------------------------------------------------------
 
-ABC_DIAGONAL_MM = 60.0
-
-
 def _solid(solid) -> trimesh.Trimesh:
     m = solid.to_mesh()
     return trimesh.Trimesh(np.asarray(m.vert_properties, dtype=np.float64)[:, :3],
@@ -495,15 +492,11 @@ def part_freeform_saddle():
 
 
 def _abc_part(name: str, data: Path):
-    from cam.io import read_input
+    # The corpus benches read and scale the ABC parts alike (bench/ is on the path).
+    from remesh import abc_part
 
-    path = data / "abc" / f"{name}.stl"
-    if not path.exists():
-        return None
-    mesh = read_input(path)  # the pipeline's reader: STL corners merged into vertices, as for an upload
-    v = mesh.points - mesh.points.min(axis=0)
-    v = v * (ABC_DIAGONAL_MM / np.linalg.norm(np.ptp(v, axis=0)))
-    return trimesh.Trimesh(v, np.asarray(mesh.faces, dtype=np.int64), process=True)
+    arrays = abc_part(name, data)
+    return None if arrays is None else trimesh.Trimesh(*arrays, process=True)
 
 
 def _shared_part(name: str, data: Path):

@@ -169,17 +169,21 @@ def _shared(name: str) -> Callable[[Path], Mesh | None]:
     return load
 
 
-def _abc(name: str) -> Callable[[Path], Mesh | None]:
-    def load(data: Path) -> Mesh | None:
-        from cam.io import read_input
+def abc_part(name: str, data: Path) -> Mesh | None:
+    """ABC part `name` read as an upload is (STL corners merged into vertices), moved to the origin and scaled
+    to an ABC_DIAGONAL_MM bounding-box diagonal; None when its file is absent."""
+    from cam.io import read_input
 
-        path = data / "abc" / f"{name}.stl"
-        if not path.exists():
-            return None
-        mesh = read_input(path)  # the pipeline's reader: STL corners merged into vertices as for an upload
-        v = mesh.points - mesh.points.min(axis=0)
-        return v * (ABC_DIAGONAL_MM / np.linalg.norm(np.ptp(v, axis=0))), mesh.faces.astype(np.int64)
-    return load
+    path = data / "abc" / f"{name}.stl"
+    if not path.exists():
+        return None
+    mesh = read_input(path)
+    v = mesh.points - mesh.points.min(axis=0)
+    return v * (ABC_DIAGONAL_MM / np.linalg.norm(np.ptp(v, axis=0))), mesh.faces.astype(np.int64)
+
+
+def _abc(name: str) -> Callable[[Path], Mesh | None]:
+    return lambda data: abc_part(name, data)
 
 
 def _made(make: Callable[[], Mesh]) -> Callable[[Path], Mesh | None]:
