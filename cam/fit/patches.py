@@ -181,7 +181,8 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
     report(0.92, "measuring every mesh sample against the surfaces")
     errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
                            params.tolerance_mm, processes=processes, check_cancel=cancel,
-                           progress=progress_labelled(report, 0.92, 0.97, "measuring every mesh sample against the surfaces"))
+                           progress=progress_labelled(report, 0.92, 0.97,
+                                                      "measuring every mesh sample against the surfaces"))
     report(0.97, "reporting each patch: its errors, folds and creases")
     creases = problem.creases
     if creases is None:
@@ -320,8 +321,8 @@ def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, each: _
     """The free fits, with those whose samples moved to or from a neighbour fitted again from where they were."""
     moved = sorted(_reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free],
                              problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel,
-                             progress=progress_labelled(each.report, 0.33, 0.35, "moving samples beyond a border to a "
-                                                "neighbour that is closer")))
+                             progress=progress_labelled(each.report, 0.33, 0.35, "moving samples beyond a border "
+                                                        "to a neighbour that is closer")))
     refits = each.map(lambda k, cc, pr: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "check_cancel": cc,
                                                                                   "progress": pr}),
                       moved, 0.35, 0.4, "fitting again the patches whose samples moved")

@@ -195,10 +195,11 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     # `best` is what is returned; `fit` what the next round refines (after a weak round, its refit).
     best, best_peaks = fit, peaks
     judged = (lambda f: f) if judge_band is None else (lambda f: _near_sides(f, judge_band))
-    while rounds < max_refinements and max(judged(fit).max_error, peaks[2].max(initial=0.0)) > tolerance_mm:
+    seen = judged(fit)  # what is judged and refined of `fit`
+    while rounds < max_refinements and _largest(seen, peaks) > tolerance_mm:
         if check_cancel is not None:
             check_cancel()
-        tu, tv = _split_targets(judged(fit), peaks, tolerance_mm=tolerance_mm, fix_border=fix_border,
+        tu, tv = _split_targets(seen, peaks, tolerance_mm=tolerance_mm, fix_border=fix_border,
                                 border_band=border_band, min_span=min_span)
         if tu.size == fit.knots_u.size and tv.size == fit.knots_v.size:
             break
@@ -207,14 +208,16 @@ def fit_refined(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
                              check_cancel=check_cancel, progress=_round_progress(progress, rounds, max_refinements),
                              **options)
         refit_peaks = _peaks(mesh, refit)
-        improved, enough = _judge_round(judged(refit), refit_peaks, judged(best), best_peaks,
+        seen_refit = judged(refit)
+        improved, enough = _judge_round(seen_refit, refit_peaks, judged(best), best_peaks,
                                         tolerance_mm=tolerance_mm, min_gain=min_gain)
         if improved:
             best, best_peaks = refit, refit_peaks
         weak = 0 if enough else weak + 1
-        if weak >= 2 or _stalled(judged(refit), refit_peaks, judged(fit), peaks, min_drop=min_drop):
+        # A round that took under `min_drop` off the largest distance: see the docstring.
+        if weak >= 2 or _largest(seen_refit, refit_peaks) > _largest(seen, peaks) * (1.0 - min_drop):
             break
-        fit, peaks = refit, refit_peaks
+        fit, peaks, seen = refit, refit_peaks, seen_refit
     return Refined(best, rounds, first, best_peaks)
 
 
@@ -292,13 +295,9 @@ def _near_sides(fit: SurfaceFit, band: float) -> SurfaceFit:
                    surface_distance=np.where(near_surface, fit.surface_distance, 0.0))
 
 
-def _stalled(refit: SurfaceFit, refit_peaks, fit: SurfaceFit, peaks, *, min_drop: float) -> bool:
-    """Whether the round from `fit` to `refit` lowered the largest distance, peaks counted, by less than the
-    fraction `min_drop`."""
-    def largest(f, p):
-        return max(f.max_error, float(p[2].max(initial=0.0)))
-
-    return largest(refit, refit_peaks) > largest(fit, peaks) * (1.0 - min_drop)
+def _largest(fit: SurfaceFit, peaks) -> float:
+    """The fit's largest distance (mm) with the peaks found between its lattice's points counted."""
+    return max(fit.max_error, float(peaks[2].max(initial=0.0)))
 
 
 def _peaks(mesh, fit: SurfaceFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -314,7 +313,7 @@ def _improves(a: SurfaceFit, peaks_a, b: SurfaceFit, peaks_b, tolerance_mm: floa
     def score(fit, peaks):
         d = peaks[2]
         extra = float(np.mean(np.maximum(d - tolerance_mm, 0.0) ** 2)) if d.size else 0.0
-        return fit.excess(tolerance_mm) + extra, max(fit.max_error, float(d.max(initial=0.0)))
+        return fit.excess(tolerance_mm) + extra, _largest(fit, peaks)
 
     (ea, ma), (eb, mb) = score(a, peaks_a), score(b, peaks_b)
     if ea > 0.0 or eb > 0.0:
