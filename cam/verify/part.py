@@ -176,6 +176,20 @@ def _certified(program: ParsedProgram) -> float | None:
         return None
 
 
+def format_share(share: float) -> str:
+    """A share of the part (0..1) as a percentage with one decimal, e.g. ``"99.9 %"``.
+
+    Rounded to the nearest 0.1 %, except that a share strictly between 0 and 1 never prints as 0.0 % or
+    100.0 %: 99.993 % finished is written ``"> 99.9 %"``, so the words "100.0 %" mean the whole of it.
+    """
+    share = float(share)
+    if 0.0 < share < 0.0005:
+        return "< 0.1 %"
+    if 0.9995 <= share < 1.0:
+        return "> 99.9 %"
+    return f"{100 * share:.1f} %"
+
+
 def _report(area, total, reach_main, reach_rest, left, finished, target, r, r2) -> dict:
     """Shares of the part's area by what happened to it."""
     reachable = float(area[reach_main].sum())
@@ -191,10 +205,10 @@ def _report(area, total, reach_main, reach_rest, left, finished, target, r, r2) 
         "not_planned_mm2": float(area[reach_main & unfinished].sum()),
     }
     finished_share = float(area[finished | (~reach_main & (left <= target))].sum()) / total
-    summary = (f"finished {100 * float(area[finished].sum()) / max(reachable, 1e-300):.1f} % of what a {r:g} mm "
-               f"ball can reach ({100 * reachable / total:.1f} % of the part)")
+    summary = (f"finished {format_share(float(area[finished].sum()) / max(reachable, 1e-300))} of what a {r:g} mm "
+               f"ball can reach ({format_share(reachable / total)} of the part)")
     if r2:
-        summary += f"; with the {r2:g} mm rest ball, {100 * finished_share:.1f} % of the part is finished"
+        summary += f"; with the {r2:g} mm rest ball, {format_share(finished_share)} of the part is finished"
     return {
         "tool_radius_mm": r, "rest_radius_mm": r2, "target_scallop_mm": target, "area_mm2": total,
         "reachable_share": reachable / total,

@@ -16,6 +16,7 @@ import numpy as np
 
 from cam.gcode.parser import ParsedProgram
 from cam.gcode.setup import Setup
+from cam.verify.part import format_share
 from cam.verify.picture import Arrow, Plane, is_closed, render_svg, simplify_mesh
 
 __all__ = ["COVERAGE_CLASSES", "DEFAULT_RAPID_MM_MIN", "ProgramStats", "classify_faces", "measure_moves",
@@ -153,7 +154,7 @@ def _mm(v, key: str = "", digits: int = 3) -> str:
 
 
 def _pct(v, key: str = "") -> str:
-    return _val(v, f"{100 * v:.1f} %", key) if v is not None else _val(None, "")
+    return _val(v, format_share(v), key) if v is not None else _val(None, "")
 
 
 def _area(v, key: str = "") -> str:
@@ -223,7 +224,7 @@ def _unfinished_rows(verify: dict, tool: dict) -> list[list[str]]:
     def row(key: str, label: str, indent: bool = False) -> list[str]:
         v = un.pop(key)
         return [('<span class="sub-row">… ' if indent else "<span>") + escape(label) + "</span>", _area(v, key),
-                _val(v / total, f"{100 * v / total:.1f} %")]
+                _val(v / total, format_share(v / total))]
 
     rows = []
     if "not_planned_mm2" in un:

@@ -19,6 +19,7 @@ from cam.spline import analytic
 from cam.spline.geometry import Patch
 from cam.spline.knots import sub_surface
 from cam.verify import measure_program
+from cam.verify.part import format_share
 
 R_TOOL, TARGET = 3.0, 0.16
 
@@ -241,3 +242,11 @@ def test_a_flat_patch_with_bent_iso_lines_keeps_its_bound():
     plan, prog, m = run([sector], chord_fraction=0.1)
     assert m.report["max_scallop_mm"] <= plan.certified_scallop_mm * (1 + 1e-6) <= TARGET
     assert m.report["max_gouge_mm"] < 1e-3
+
+
+@pytest.mark.parametrize(("share", "text"), [
+    (1.0, "100.0 %"), (0.0, "0.0 %"), (0.5, "50.0 %"), (0.9994, "99.9 %"),
+    (0.99993, "> 99.9 %"), (0.9995, "> 99.9 %"), (0.00001, "< 0.1 %"), (0.0005, "0.1 %"),
+])
+def test_a_share_short_of_the_whole_never_reads_100_or_0_percent(share, text):
+    assert format_share(share) == text

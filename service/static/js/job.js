@@ -23,7 +23,9 @@ function first(obj, keys) {
  * criteria (which judge the share of what the ball can reach) say: the base and undercuts may be most of it. */
 export const LITTLE_SHARE = 0.5;
 
-const pctText = (v) => `${(100 * v).toFixed(1)} %`; // as verify.json's summary writes it
+/** A share as verify.json's summary writes it (cam/verify/part.py format_share): strictly between 0 and 1 it
+ * never reads 0.0 % or 100.0 %, so "100.0 %" means all of it. */
+const pctText = (v) => (v > 0 && v < 0.0005 ? "< 0.1 %" : v >= 0.9995 && v < 1 ? "> 99.9 %" : `${(100 * v).toFixed(1)} %`);
 
 /** One verdict on how much of the part the programs finish: verify's pass/fail, its finished share of the
  * reachable against toolpath.min_finished_share, and the finished share of the whole part. */
