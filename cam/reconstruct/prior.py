@@ -12,11 +12,12 @@ oriented sample, which is correct for a closed, densely sampled surface).
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
 from cam import CheckCancel
 
-__all__ = ["plane_distance"]
+__all__ = ["band_vertices", "plane_distance"]
 
 
 def plane_distance(
@@ -79,3 +80,35 @@ def plane_distance(
             plane = np.einsum("mkj,mkj->mk", q[:, None, :] - points[idx], normals[idx])
             out[start:start + step] = (w * plane).sum(axis=1) / w.sum(axis=1)
     return out
+
+
+def band_vertices(points: np.ndarray, lo: np.ndarray, cell: float, dims: np.ndarray, band: float) -> np.ndarray:
+    """Flat x-major indices (z fastest) of the lattice vertices that may lie within `band` of a point.
+
+    The lattice's vertex (i, j, k) is at ``lo + cell * (i, j, k)``, `dims` (3,) vertices per axis. Every
+    vertex within `band` of a point is among them (a superset: the cube around each point's cell, one
+    cell wider than the band each way). `plane_distance` bounded by `band` finds no sample for any other
+    vertex, and a query far from the cloud costs as much as one near it, so on a fine lattice, whose band
+    around the cloud is a few per cent of its vertices, only these are worth asking.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3), float64
+    lo : ndarray, shape (3,), float64
+    cell : float
+        The lattice's spacing, the points' units.
+    dims : ndarray, shape (3,), int
+    band : float
+        Distance, the points' units.
+
+    Returns
+    -------
+    ndarray, shape (m,), int64, ascending.
+    """
+    dims = np.asarray(dims, dtype=np.int64)
+    ijk = np.clip(np.floor((np.asarray(points, dtype=np.float64) - lo) / cell).astype(np.int64), 0, dims - 1)
+    occupied = np.zeros(tuple(int(d) for d in dims), dtype=np.uint8)
+    occupied[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = 1
+    reach = int(np.ceil(band / cell)) + 1
+    near = maximum_filter(occupied, size=2 * reach + 1, mode="constant", cval=0)
+    return np.flatnonzero(near)

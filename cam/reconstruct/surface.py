@@ -35,7 +35,7 @@ from cam.reconstruct.fidelity import check_fidelity, measure_fidelity
 from cam.reconstruct.fields import GridField, IGRNetwork
 from cam.reconstruct.normals import check_normals, estimate_normals
 from cam.reconstruct.presets import resolve_options
-from cam.reconstruct.prior import plane_distance
+from cam.reconstruct.prior import band_vertices, plane_distance
 from cam.reconstruct.sharpen import sharpen_creases
 from cam.reconstruct.train import TrainSettings, train_igr
 
@@ -286,12 +286,17 @@ def _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check
     coarse = plane_distance(field.vertices(0), unit, nrm, spacing=spacing, k=opts["prior_k"],
                             workers=workers, tree=tree, check_cancel=check_cancel)
     field.set_level(0, torch.as_tensor(coarse))
-    fine_v = field.vertices(-1)
-    band = 4.0 * field.cell[-1]
-    fine = plane_distance(fine_v, unit, nrm, spacing=spacing, k=opts["prior_k"], workers=workers,
-                          tree=tree, max_distance=band, check_cancel=check_cancel)
+    lo_f, cell, dims = field.lo.detach().cpu().double().numpy(), field.cell[-1], field.dims[-1]
+    axes = [lo_f[a] + cell * np.arange(dims[a]) for a in range(3)]
+    band = 4.0 * cell
+    near = band_vertices(unit, lo_f, cell, dims, band)
+    i, j, k = np.unravel_index(near, tuple(int(d) for d in dims))
+    fine = np.full(int(np.prod(dims)), np.nan)
+    fine[near] = plane_distance(np.stack([axes[0][i], axes[1][j], axes[2][k]], axis=1), unit, nrm, spacing=spacing,
+                                k=opts["prior_k"], workers=workers, tree=tree, max_distance=band,
+                                check_cancel=check_cancel)
     with torch.no_grad():
-        base = field.lattice([np.unique(fine_v[:, a]) for a in range(3)]).reshape(-1).double().cpu().numpy()
+        base = field.lattice(axes).reshape(-1).double().cpu().numpy()
     residual = np.where(np.isfinite(fine), fine - base, 0.0)
     field.set_level(-1, torch.as_tensor(residual))
     # Adam moves every touched vertex by about the learning rate whatever its gradient, so the

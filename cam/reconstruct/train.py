@@ -114,7 +114,7 @@ def train_igr(
                 f"training diverged: the loss became {float(loss.detach())} at iteration {it + 1}; "
                 "lower reconstruct.learning_rate or check the cloud for outliers"
             )
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         loss.backward()
         opt.step()
         if progress is not None:
@@ -132,8 +132,51 @@ def train_igr(
 def _adam(field: torch.nn.Module, param_groups: list[dict] | None, settings: TrainSettings):
     """Adam over the parameter groups, and each group's learning-rate factor."""
     groups = param_groups or [{"params": list(field.parameters()), "lr_scale": 1.0}]
-    spec = [{"params": g["params"], "lr": settings.learning_rate * g.get("lr_scale", 1.0)} for g in groups]
-    return torch.optim.Adam(spec, lr=settings.learning_rate), [g.get("lr_scale", 1.0) for g in groups]
+    spec = [{"params": list(g["params"]), "lr": settings.learning_rate * g.get("lr_scale", 1.0)} for g in groups]
+    return _Adam(spec), [g.get("lr_scale", 1.0) for g in groups]
+
+
+class _Adam:
+    """Adam (Kingma and Ba, 2015) over parameter groups, each a dict of ``params`` and ``lr``.
+
+    The same arithmetic as ``torch.optim.Adam``'s single-tensor path on the CPU (betas 0.9 and 0.999,
+    eps 1e-8, no weight decay), step for step, so a field trains to the same bits; torch's own class
+    spends about a second importing its compiler on first use (an eighth of the README example's
+    reconstruction).
+    """
+
+    betas = (0.9, 0.999)
+    eps = 1e-8
+
+    def __init__(self, param_groups: list[dict]) -> None:
+        self.param_groups = param_groups
+        self._state: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._steps = 0
+
+    def zero_grad(self) -> None:
+        for group in self.param_groups:
+            for p in group["params"]:
+                p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        beta1, beta2 = self.betas
+        self._steps += 1
+        bias_correction1 = 1 - beta1 ** float(self._steps)
+        bias_correction2_sqrt = (1 - beta2 ** float(self._steps)) ** 0.5
+        for group in self.param_groups:
+            step_size = group["lr"] / bias_correction1
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                if id(p) not in self._state:
+                    self._state[id(p)] = (torch.zeros_like(p, memory_format=torch.preserve_format),
+                                          torch.zeros_like(p, memory_format=torch.preserve_format))
+                exp_avg, exp_avg_sq = self._state[id(p)]
+                exp_avg.lerp_(p.grad, 1 - beta1)
+                exp_avg_sq.mul_(beta2).addcmul_(p.grad, p.grad, value=1 - beta2)
+                denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
+                p.addcdiv_(exp_avg, denom, value=-step_size)
 
 
 def _igr_loss(field, points, normals, sigma, box, settings: TrainSettings, *, batch: int,

@@ -325,3 +325,43 @@ def test_marching_cubes_fins_are_dropped_and_the_mesh_stays_closed():
     assert not is_watertight(with_fin)
     assert is_watertight(_drop_fins(np.vstack([tetra, [[4, 5, 6], [4, 6, 5]]])))
     assert len(_drop_fins(with_fin)) == 3
+
+
+def test_band_vertices_hold_every_lattice_vertex_within_the_band():
+    # Oracle: the exact distance from every vertex of a small lattice to its nearest point.
+    from scipy.spatial import cKDTree
+
+    from cam.reconstruct.prior import band_vertices
+
+    rng = np.random.default_rng(3)
+    lo, cell, dims, band = np.array([-1.0, -0.5, -0.8]), 0.05, np.array([41, 27, 33]), 0.12
+    points = lo + rng.uniform(0.0, 1.0, (6, 3)) * (dims - 1) * cell
+    i, j, k = np.meshgrid(*[np.arange(d) for d in dims], indexing="ij")
+    vertices = lo + cell * np.stack([i, j, k], axis=-1).reshape(-1, 3)
+    within = np.flatnonzero(cKDTree(points).query(vertices)[0] <= band)
+    near = band_vertices(points, lo, cell, dims, band)
+    assert np.isin(within, near).all()
+    assert len(near) < len(vertices) // 2  # and it leaves most of the lattice out
+
+
+def test_adam_takes_torch_adams_steps_to_the_bit():
+    import torch
+
+    from cam.reconstruct.train import _Adam
+
+    def run(make):
+        gen = torch.Generator().manual_seed(0)
+        a = torch.nn.Parameter(torch.randn(50, generator=gen))
+        b = torch.nn.Parameter(torch.randn(7, generator=gen))
+        opt = make([{"params": [a], "lr": 0.02}, {"params": [b], "lr": 0.005}])
+        for it in range(25):
+            for group, lr in zip(opt.param_groups, (0.02, 0.005), strict=True):
+                group["lr"] = lr * (1 - it / 30)
+            loss = (a.sin() * a).sum() + (b ** 4).sum()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        return a.detach().clone(), b.detach().clone()
+
+    ours, theirs = run(_Adam), run(torch.optim.Adam)
+    assert torch.equal(ours[0], theirs[0]) and torch.equal(ours[1], theirs[1])
