@@ -37,7 +37,7 @@ from cam.mesh.samples import SurfaceSamples, sample_surface
 from cam.params import ToolParams, ToolpathParams
 from cam.plan.coverage import left_on_samples
 from cam.plan.finish import finish_setup
-from cam.plan.lines import GOUGE_TOL_MM, follow_part
+from cam.plan.lines import GOUGE_TOL_MM, follow_part, ride_over
 from cam.plan.link import link_on_part, order_passes
 from cam.plan.part import SetupPart, setup_part
 from cam.plan.patch import ROUNDING_MM
@@ -209,15 +209,18 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
         xy = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
         return float(max(drop_ball(link, xy).max(), part.floor_z + r + toolpath.rapid_margin_mm) - r)
 
-    def stay_down(a: np.ndarray, b: np.ndarray) -> bool:
-        d = float(np.linalg.norm(b[:2] - a[:2]))
-        if d > 2.5 * r or abs(b[2] - a[2]) > r:
-            return False
-        lift = np.array([0.0, 0.0, r])
-        return part.clear_between(a + lift, b + lift, tol_mm=GOUGE_TOL_MM)
+    lift = np.array([0.0, 0.0, r])
+
+    def ride(a: np.ndarray, b: np.ndarray, budget_mm: float) -> np.ndarray | None:
+        if float(np.linalg.norm(b[:2] - a[:2])) > 2.5 * r:
+            return None
+        if abs(b[2] - a[2]) <= r and part.clear_between(a + lift, b + lift, tol_mm=GOUGE_TOL_MM):
+            return b[None]
+        over = ride_over(part, a + lift, b + lift, budget_mm=budget_mm)
+        return None if over is None else over - lift
 
     moves = link_on_part(ordered, clearance_z=top_z + toolpath.clearance_mm, retract_mm=toolpath.retract_mm,
-                         safe_z=safe_z, stay_down=stay_down, travel_z=travel_z)
+                         safe_z=safe_z, ride=ride, travel_z=travel_z)
     strategy = [names[k] for k, _ in order]
     return ProgramPlan(setup=part.setup, name=name, role=role, tool_radius_mm=r, passes=ordered,
                        strategy=strategy, moves=moves, bound_mm=bound_mm, stats=stats)

@@ -13,7 +13,7 @@ import numpy as np
 
 from cam.plan.part import SetupPart
 
-__all__ = ["GOUGE_TOL_MM", "follow_part", "merge_straight", "split_runs"]
+__all__ = ["GOUGE_TOL_MM", "follow_part", "merge_straight", "ride_over", "split_runs"]
 
 #: A straight move may reach this far into the part between its ends (float round-off, not a budget).
 GOUGE_TOL_MM = 1e-4
@@ -101,3 +101,53 @@ def merge_straight(points: np.ndarray, *, tol_mm: float = 0.5 * GOUGE_TOL_MM) ->
             keep[i + 1 + k] = True
             stack += [(i, i + 1 + k), (i + 1 + k, j)]
     return pts[keep]
+
+
+def ride_over(part: SetupPart, a: np.ndarray, b: np.ndarray, *, budget_mm: float) -> np.ndarray | None:
+    """Ball centres of a link from centre a (3,) to centre b (3,) that rides over the part where the straight
+    move would cut it: the straight line raised to the drop-cutter height wherever that is higher.
+
+    Between two passes on a convex stretch (a waterline's end on a rounded wall, the next level's start) the
+    straight move cuts, and a lift and plunge would cost more feed than the link itself. Beside a steep wall
+    a slanted move between two heights cuts the wall's edge however finely it is split; such a move is made
+    as a climb then a move across, or a move across then a descent.
+
+    Returns
+    -------
+    (k, 3) float64 or None
+        The link after a, b last, mm; None where it is longer than `budget_mm` or a move of it does not
+        clear the part within `GOUGE_TOL_MM`.
+    """
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    # Spaced as `SetupPart.clear_between` checks a move: between two points on the part's height the
+    # ball sinks at most the tolerance.
+    spacing = float(np.sqrt(8.0 * part.radius_mm * GOUGE_TOL_MM))
+    n = max(int(np.ceil(float(np.linalg.norm(b - a)) / spacing)), 1)
+    line = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+    line[1:-1, 2] = np.maximum(line[1:-1, 2], part.drop(line[1:-1, :2]))
+    path = _square_where_cut(part, follow_part(part, line, chord_mm=np.inf)[0])
+    # Merged, a move beside a steep wall may sink further than the check allows: then merged more finely,
+    # or the points as found.
+    for candidate in (merge_straight(path), merge_straight(path, tol_mm=0.05 * GOUGE_TOL_MM), path):
+        if float(np.linalg.norm(np.diff(candidate, axis=0), axis=1).sum()) > budget_mm:
+            return None
+        if _clear(part, candidate).all():
+            return candidate[1:]
+    return None
+
+
+def _clear(part: SetupPart, path: np.ndarray) -> np.ndarray:
+    """bool (n - 1,): whether each move of the centre polyline (n, 3) clears the part within `GOUGE_TOL_MM`."""
+    return part.clear_moves(path[:-1], path[1:], tol_mm=GOUGE_TOL_MM)
+
+
+def _square_where_cut(part: SetupPart, path: np.ndarray) -> np.ndarray:
+    """The centre polyline (n, 3) with each move that cuts made as two: the vertical one first where it
+    climbs, last where it descends, so that it is made where the ball stands at or above the part."""
+    ok = _clear(part, path)
+    out = [path[0]]
+    for p, q, fine in zip(path[:-1], path[1:], ok, strict=True):
+        if not fine:
+            out.append(np.array([p[0], p[1], q[2]]) if q[2] > p[2] else np.array([q[0], q[1], p[2]]))
+        out.append(q)
+    return np.array(out)

@@ -5,7 +5,9 @@ otherwise, and always between patches, it retracts to the clearance height, move
 comes down in rapid to `retract_mm` above the next start and plunges at the plunge feed. Patches are
 visited greedily, each next the one whose entry is nearest to the current exit, which cuts air time.
 `link_on_part` links whole-part programs the same way, except that a link rises only as high as the part
-under its straight line needs (the rapid margin kept), not to the clearance height.
+under its straight line needs (the rapid margin kept), not to the clearance height, and that where a
+straight move would cut, the tool may instead ride over the part at feed when that is shorter than the
+lift and plunge it replaces.
 """
 
 from __future__ import annotations
@@ -143,15 +145,15 @@ def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -
     return out
 
 
-def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, stay_down,
+def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, ride,
                  travel_z=None, owner: int = -1) -> MoveList:
     """One program's moves from passes given in cutting order (tool tips, machine frame).
 
-    Between two passes the tool feeds straight across when `stay_down(a, b)` allows it; otherwise it feeds
-    up to the height where it clears the part by the rapid margin (`safe_z(xy)`, at least `retract_mm` above
-    the tip), rises in rapid to the travel height of that link (`travel_z`, at most the clearance height),
-    moves across, comes down in rapid to the safe height over the next start and feeds down to it: rapids
-    never pass closer to the part than the margin.
+    Between two passes the tool feeds across along `ride(a, b, budget)` where it offers a link; otherwise
+    it feeds up to the height where it clears the part by the rapid margin (`safe_z(xy)`, at least
+    `retract_mm` above the tip), rises in rapid to the travel height of that link (`travel_z`, at most the
+    clearance height), moves across, comes down in rapid to the safe height over the next start and feeds
+    down to it: rapids never pass closer to the part than the margin.
 
     Parameters
     ----------
@@ -163,8 +165,10 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
         Least height of a rapid's end above the tip it serves, mm.
     safe_z : callable
         safe_z(xy (2,)) -> tip height (mm) from which a ball lowered at xy keeps the rapid margin to the part.
-    stay_down : callable
-        stay_down(a (3,), b (3,)) -> bool: whether feeding straight from tip a to tip b is safe and short.
+    ride : callable
+        ride(a (3,), b (3,), budget_mm) -> (k, 3) tips or None: a feed link from tip a that ends at tip b
+        (a excluded, b last) and cuts nothing; one longer than `budget_mm` (the feed up and down of the
+        lift it would replace) only where a straight move is short and safe. None: lift.
     travel_z : callable, optional
         travel_z(a_xy (2,), b_xy (2,)) -> tip height (mm) at which a rapid straight from over a to over b
         keeps the margin; None: links travel at the clearance height.
@@ -187,14 +191,16 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
         if not len(tips):
             continue
         first = tips[0]
-        if here is not None and stay_down(here, first):
-            add(first, FEED)
+        down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
+        up = None if here is None else min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
+        link = None if here is None else ride(here, first, (up - here[2]) + (down - first[2]))
+        if link is not None:
+            for p in link:
+                add(p, FEED)
         else:
-            down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
             if here is None:
                 add([first[0], first[1], clearance_z], RAPID)
             else:
-                up = min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
                 across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down),
                                                                    clearance_z)
                 add([here[0], here[1], up], FEED)

@@ -80,18 +80,26 @@ class SetupPart:
 
     def clear_between(self, a: np.ndarray, b: np.ndarray, *, tol_mm: float) -> bool:
         """Whether the ball centre can move straight from a (3,) to b (3,) (mm) without cutting the part or
-        the table by more than about 2·tol_mm.
+        the table by more than about 2·tol_mm (`clear_moves` of one move)."""
+        return bool(self.clear_moves(np.asarray(a)[None], np.asarray(b)[None], tol_mm=tol_mm)[0])
+
+    def clear_moves(self, starts: np.ndarray, ends: np.ndarray, *, tol_mm: float) -> np.ndarray:
+        """bool (k,): whether the ball centre can move straight from each start (k, 3) to its end (k, 3) (mm)
+        without cutting the part or the table by more than about 2·tol_mm.
 
         The drop-cutter checks centres along the move (each may sit tol_mm low). A part point at least r
         from two centres s apart is at least √(r² − s²/4) ≈ r − s²/8r from the move between them, so the
         centres are spaced s = √(8 r tol) along the move's 3-D length, not its xy length: a steep move
         past the top of a wall is checked as finely as a flat one.
         """
-        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        a, b = np.asarray(starts, dtype=np.float64).reshape(-1, 3), np.asarray(ends, dtype=np.float64).reshape(-1, 3)
         spacing = float(np.sqrt(8.0 * self.radius_mm * tol_mm))
-        n = max(int(np.ceil(float(np.linalg.norm(b - a)) / spacing)), 1)
-        c = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
-        return bool(np.all(self.clears(c[:, :2], c[:, 2] + tol_mm)))
+        n = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing).astype(np.int64), 1)
+        move = np.repeat(np.arange(len(a)), n + 1)
+        t = (np.arange(len(move)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)) / np.repeat(n, n + 1)
+        c = a[move] + t[:, None] * (b - a)[move]
+        ok = self.clears(c[:, :2], c[:, 2] + tol_mm)
+        return np.logical_and.reduceat(ok, np.cumsum(n + 1) - (n + 1)) if len(a) else np.zeros(0, dtype=bool)
 
     def wall_normals(self, centres: np.ndarray) -> np.ndarray:
         """Unit normals (n, 3) of the part where it is nearest to each ball centre (n, 3)."""
