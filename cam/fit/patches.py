@@ -162,7 +162,8 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
                     normal_weight_mm=params.normal_weight_mm, anchor_weight=anchor_weight,
                     iterations=params.iterations, mesh=problem.index if mesh_weight > 0 else None,
                     mesh_weight=mesh_weight, check_cancel=cancel)
-    each = _Each(processes=processes, report=report, cancel=cancel)
+    each = _Each(processes=processes, report=report, cancel=cancel,
+                 sizes=np.bincount(problem.owner[problem.owner >= 0], minlength=len(problem.grids)))
     free = _fit_free(problem, fit_opts, each)
     # The constrained fits start from the first free fits, before refinement (and before samples
     # moved: they refit from the top anyway): knot lines run across the whole patch, and the spans a
@@ -290,24 +291,33 @@ def _fit_free_patch(problem: _Problem, k: int, start: SurfaceFit | None, fit_opt
 
 @dataclass(frozen=True)
 class _Each:
-    """How the per-patch loops run: `processes` patches at once, reporting and checking for cancel."""
+    """How the per-patch loops run: `processes` patches at once, reporting and checking for cancel; `sizes`
+    (patches,): each patch's samples, what its fit costs roughly."""
 
     processes: int
     report: Progress
     cancel: CheckCancel
+    sizes: np.ndarray
 
     def map(self, fit_one, ks: list[int], start: float, end: float, label: str) -> list[Refined]:
         """[fit_one(k, check_cancel, progress) for k in ks], progress from `start` to `end`, each patch's
         own steps counted as it runs; the message is `label`, the patches done and what runs."""
+        # Largest first: a large patch handed out last would leave the other processes idle while it runs.
+        # Each fit is independent of the others, so the order changes no result.
+        order = sorted(range(len(ks)), key=lambda i: -int(self.sizes[ks[i]]))
 
-        def one(i: int, cc: CheckCancel, item_progress: Progress) -> Refined:
+        def one(j: int, cc: CheckCancel, item_progress: Progress) -> Refined:
             def patch_progress(fraction: float, message: str | None = None) -> None:
-                item_progress(fraction, f"patch {ks[i] + 1}" + (f": {message}" if message else ""))
+                item_progress(fraction, f"patch {ks[order[j]] + 1}" + (f": {message}" if message else ""))
 
-            return fit_one(ks[i], cc, patch_progress)
+            return fit_one(ks[order[j]], cc, patch_progress)
 
-        return map_forked(one, len(ks), processes=self.processes, check_cancel=self.cancel,
+        done = map_forked(one, len(ks), processes=self.processes, check_cancel=self.cancel,
                           progress=progress_labelled(self.report, start, end, label), item_progress=True)
+        out: list = [None] * len(ks)
+        for j, i in enumerate(order):
+            out[i] = done[j]
+        return out
 
 
 def _fit_free(problem: _Problem, fit_opts: dict, each: _Each) -> list[Refined]:

@@ -433,6 +433,11 @@ def test_patches_fitted_in_two_processes_are_bit_for_bit_those_of_one():
         assert np.array_equal(a.surface.knots_u, b.surface.knots_u) and np.array_equal(a.surface.knots_v, b.surface.knots_v)
         assert (a.max_error_mm, a.mean_error_mm, a.refinements) == (b.max_error_mm, b.mean_error_mm, b.refinements)
     assert one.max_gap_mm == two.max_gap_mm
+    # The larger patch is fitted first; each surface still comes back to its own patch.
+    centres = [V[g].reshape(-1, 3).mean(axis=0) for g in grids]
+    for k, fit in enumerate(two.patches):
+        own = fit.surface.control_points.reshape(-1, 3).mean(axis=0)
+        assert np.linalg.norm(own - centres[k]) < np.linalg.norm(own - centres[1 - k])
 
 
 def _refined_on_plane_with_raised_border(**options):
