@@ -112,9 +112,8 @@ def link_passes(patch_passes: list[tuple[int, list[np.ndarray]]], *, clearance_z
 
 
 def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -> list[tuple[int, bool]]:
-    """Greedy order of passes (tool tips (n_i, 3) each): next the pass whose start or end is nearest to where
-    the last one ended, turned round when its end is the nearer. Nearest in 3-D: the next waterline level
-    down the same wall comes before a pass beside it at another height, whose link would climb or plunge.
+    """Greedy order of passes (tool tips (n_i, 3) each): next the pass whose start or end is nearest (in xy)
+    to where the last one ended, turned round when its end is the nearer.
 
     Parameters
     ----------
@@ -130,9 +129,9 @@ def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -
     """
     if not passes:
         return []
-    heads = np.array([p[0] for p in passes])
-    tails = np.array([p[-1] for p in passes])
-    here = heads[0] if start is None else np.asarray(start, dtype=np.float64)
+    heads = np.array([p[0, :2] for p in passes])
+    tails = np.array([p[-1, :2] for p in passes])
+    here = heads[0] if start is None else np.asarray(start, dtype=np.float64)[:2]
     free = np.ones(len(passes), dtype=bool)
     out = []
     for _ in range(len(passes)):
