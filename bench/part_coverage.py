@@ -369,7 +369,14 @@ def main(argv: list[str]) -> None:
 
 
 def _pct(x) -> str:
-    return "—" if x is None else f"{100 * x:.1f} %"
+    """A share with one decimal; one short of the whole (or above nothing) never reads 100.0 % (0.0 %)."""
+    if x is None:
+        return "—"
+    if 0.9995 <= x < 1.0:
+        return f"{min(np.floor(1e4 * x) / 100, 99.99):.2f} %"
+    if 0.0 < x < 0.0005:
+        return "< 0.1 %"
+    return f"{100 * x:.1f} %"
 
 
 def _row(key: str, row: dict) -> list[str]:
