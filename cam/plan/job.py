@@ -211,16 +211,20 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
 
     lift = np.array([0.0, 0.0, r])
 
+    def stay_down(a: np.ndarray, b: np.ndarray) -> bool:
+        d = float(np.linalg.norm(b[:2] - a[:2]))
+        if d > 2.5 * r or abs(b[2] - a[2]) > r:
+            return False
+        return part.clear_between(a + lift, b + lift, tol_mm=GOUGE_TOL_MM)
+
     def ride(a: np.ndarray, b: np.ndarray, budget_mm: float) -> np.ndarray | None:
         if float(np.linalg.norm(b[:2] - a[:2])) > 2.5 * r:
             return None
-        if abs(b[2] - a[2]) <= r and part.clear_between(a + lift, b + lift, tol_mm=GOUGE_TOL_MM):
-            return b[None]
         over = ride_over(part, a + lift, b + lift, budget_mm=budget_mm)
         return None if over is None else over - lift
 
     moves = link_on_part(ordered, clearance_z=top_z + toolpath.clearance_mm, retract_mm=toolpath.retract_mm,
-                         safe_z=safe_z, ride=ride, travel_z=travel_z)
+                         safe_z=safe_z, stay_down=stay_down, ride=ride, travel_z=travel_z)
     strategy = [names[k] for k, _ in order]
     return ProgramPlan(setup=part.setup, name=name, role=role, tool_radius_mm=r, passes=ordered,
                        strategy=strategy, moves=moves, bound_mm=bound_mm, stats=stats)

@@ -145,15 +145,16 @@ def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -
     return out
 
 
-def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, ride,
-                 travel_z=None, owner: int = -1) -> MoveList:
+def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, stay_down,
+                 ride=None, travel_z=None, owner: int = -1) -> MoveList:
     """One program's moves from passes given in cutting order (tool tips, machine frame).
 
-    Between two passes the tool feeds across along `ride(a, b, budget)` where it offers a link; otherwise
-    it feeds up to the height where it clears the part by the rapid margin (`safe_z(xy)`, at least
-    `retract_mm` above the tip), rises in rapid to the travel height of that link (`travel_z`, at most the
-    clearance height), moves across, comes down in rapid to the safe height over the next start and feeds
-    down to it: rapids never pass closer to the part than the margin.
+    Between two passes the tool feeds straight across when `stay_down(a, b)` allows it, else along
+    `ride(a, b, budget)` where that offers a link; otherwise it feeds up to the height where it clears the
+    part by the rapid margin (`safe_z(xy)`, at least `retract_mm` above the tip), rises in rapid to the
+    travel height of that link (`travel_z`, at most the clearance height), moves across, comes down in
+    rapid to the safe height over the next start and feeds down to it: rapids never pass closer to the
+    part than the margin.
 
     Parameters
     ----------
@@ -165,10 +166,12 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
         Least height of a rapid's end above the tip it serves, mm.
     safe_z : callable
         safe_z(xy (2,)) -> tip height (mm) from which a ball lowered at xy keeps the rapid margin to the part.
-    ride : callable
+    stay_down : callable
+        stay_down(a (3,), b (3,)) -> bool: whether feeding straight from tip a to tip b is safe and short.
+    ride : callable, optional
         ride(a (3,), b (3,), budget_mm) -> (k, 3) tips or None: a feed link from tip a that ends at tip b
-        (a excluded, b last) and cuts nothing; one longer than `budget_mm` (the feed up and down of the
-        lift it would replace) only where a straight move is short and safe. None: lift.
+        (a excluded, b last), cuts nothing and is no longer than `budget_mm` (the feed up and down of the
+        lift it would replace). None: lift.
     travel_z : callable, optional
         travel_z(a_xy (2,), b_xy (2,)) -> tip height (mm) at which a rapid straight from over a to over b
         keeps the margin; None: links travel at the clearance height.
@@ -191,24 +194,27 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
         if not len(tips):
             continue
         first = tips[0]
-        down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
-        up = None if here is None else min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
-        link = None if here is None else ride(here, first, (up - here[2]) + (down - first[2]))
-        if link is not None:
-            for p in link:
-                add(p, FEED)
+        if here is not None and stay_down(here, first):
+            add(first, FEED)
         else:
-            if here is None:
-                add([first[0], first[1], clearance_z], RAPID)
+            down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
+            up = None if here is None else min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
+            link = None if here is None or ride is None else ride(here, first, (up - here[2]) + (down - first[2]))
+            if link is not None:
+                for p in link:
+                    add(p, FEED)
             else:
-                across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down),
-                                                                   clearance_z)
-                add([here[0], here[1], up], FEED)
-                if across > up:
-                    add([here[0], here[1], across], RAPID)
-                add([first[0], first[1], across], RAPID)
-            add([first[0], first[1], down], RAPID)
-            add(first, PLUNGE)
+                if here is None:
+                    add([first[0], first[1], clearance_z], RAPID)
+                else:
+                    across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down),
+                                                                       clearance_z)
+                    add([here[0], here[1], up], FEED)
+                    if across > up:
+                        add([here[0], here[1], across], RAPID)
+                    add([first[0], first[1], across], RAPID)
+                add([first[0], first[1], down], RAPID)
+                add(first, PLUNGE)
         for p in tips[1:]:
             add(p, FEED)
         here = tips[-1]
