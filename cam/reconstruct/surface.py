@@ -376,7 +376,7 @@ def _predicted_resolution(evaluate, lo, hi, unit, *, resolution: int, max_faces:
 
     The pilot costs a sixty-fourth of the extraction it spares: a capped mesh was extracted at the
     preset's resolution first only to learn its face count (the README example's 20,000-face cap
-    ends at 54 cells of the preset's 384).
+    ends near 54 cells of the preset's 384).
     """
     pilot = resolution // 4
     if max_faces is None or pilot < 16:
