@@ -119,10 +119,11 @@ def ride_over(part: SetupPart, a: np.ndarray, b: np.ndarray, *, budget_mm: float
         clear the part within `GOUGE_TOL_MM`.
     """
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    if float(np.linalg.norm(b - a)) > budget_mm:
+    straight = float(np.linalg.norm(b - a))
+    if straight > budget_mm:
         return None
     # Raised at points a sixth of the ball apart; `follow_part` splits the moves that still cut.
-    n = max(int(np.ceil(float(np.linalg.norm(b - a)) / (part.radius_mm / 6.0))), 1)
+    n = max(int(np.ceil(straight / (part.radius_mm / 6.0))), 1)
     line = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
     line[1:-1, 2] = np.maximum(line[1:-1, 2], part.drop(line[1:-1, :2]))
     path = _square_where_cut(part, follow_part(part, line, chord_mm=np.inf)[0])

@@ -94,12 +94,14 @@ class SetupPart:
         """
         a, b = np.asarray(starts, dtype=np.float64).reshape(-1, 3), np.asarray(ends, dtype=np.float64).reshape(-1, 3)
         spacing = float(np.sqrt(8.0 * self.radius_mm * tol_mm))
+        if not len(a):
+            return np.zeros(0, dtype=bool)
         n = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing).astype(np.int64), 1)
+        first = np.cumsum(n + 1) - (n + 1)  # each move's first centre among all of them
         move = np.repeat(np.arange(len(a)), n + 1)
-        t = (np.arange(len(move)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)) / np.repeat(n, n + 1)
+        t = (np.arange(len(move)) - first[move]) / n[move]
         c = a[move] + t[:, None] * (b - a)[move]
-        ok = self.clears(c[:, :2], c[:, 2] + tol_mm)
-        return np.logical_and.reduceat(ok, np.cumsum(n + 1) - (n + 1)) if len(a) else np.zeros(0, dtype=bool)
+        return np.logical_and.reduceat(self.clears(c[:, :2], c[:, 2] + tol_mm), first)
 
     def wall_normals(self, centres: np.ndarray) -> np.ndarray:
         """Unit normals (n, 3) of the part where it is nearest to each ball centre (n, 3)."""
