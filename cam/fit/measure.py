@@ -16,7 +16,7 @@ from cam.mesh.closest import MeshIndex, closest_points, triangle_normals
 from cam.spline.basis import evaluate_surface, span_params
 from cam.spline.knots import lattice_knots
 
-__all__ = ["measure_lattice", "surface_peaks"]
+__all__ = ["border_distance", "measure_lattice", "surface_peaks"]
 
 
 def surface_peaks(index: MeshIndex, knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, *,
@@ -60,11 +60,7 @@ def surface_peaks(index: MeshIndex, knots_u: np.ndarray, knots_v: np.ndarray, co
     cp = np.asarray(control_points, dtype=np.float64)
     if per_quad < 1 or peaks < 1 or rounds < 0:
         raise ValueError(f"per_quad and peaks must be >= 1 and rounds >= 0, got {per_quad}, {peaks}, {rounds}")
-    grids = []
-    for k in (ku, kv):
-        lo, hi = float(k[0]), float(k[-1])
-        steps = max(int(np.ceil((hi - lo) * per_quad)), 1)
-        grids.append(np.unique(np.concatenate([np.linspace(lo, hi, steps + 1), span_params(k, 4)])))
+    grids = [np.unique(np.concatenate([_even_params(k, per_quad), span_params(k, 4)])) for k in (ku, kv)]
     uu, vv = np.meshgrid(*grids, indexing="ij")
     u, v = uu.ravel(), vv.ravel()
     d = _distance_at(index, ku, kv, cp, u, v)
@@ -88,6 +84,45 @@ def surface_peaks(index: MeshIndex, knots_u: np.ndarray, knots_v: np.ndarray, co
         best = np.maximum(best, dd[rows, k])
         h = h / 4.0
     return best_u, best_v, best
+
+
+def border_distance(index: MeshIndex, knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray, *,
+                    per_quad: int = 8) -> float:
+    """The largest distance (mm) from the mesh of the surface's border, at the points `surface_peaks` samples there.
+
+    Those points are `per_quad` per quad along each side whatever the knots, and `surface_peaks` returns at
+    least the largest of its samples' distances; so a surface whose border is held (fitted inside fixed
+    boundary curves) has peaks at least this far from the mesh, however its knots are refined.
+
+    Parameters
+    ----------
+    index : MeshIndex
+        The triangle mesh (`cam.mesh.closest.mesh_index`).
+    knots_u, knots_v : ndarray, shape (nu + 4,), (nv + 4,), float64
+        The bicubic surface's clamped knot vectors, grid-index units (quads).
+    control_points : ndarray, shape (nu, nv, 3), float64
+        The control net, mm.
+    per_quad : int
+        Samples per quad along each side, >= 1 (as `surface_peaks`).
+
+    Returns
+    -------
+    float
+        The distance, mm.
+    """
+    ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
+    if per_quad < 1:
+        raise ValueError(f"per_quad must be >= 1, got {per_quad}")
+    gu, gv = _even_params(ku, per_quad), _even_params(kv, per_quad)
+    u = np.concatenate([gu, gu, np.full(gv.size, ku[0]), np.full(gv.size, ku[-1])])
+    v = np.concatenate([np.full(gu.size, kv[0]), np.full(gu.size, kv[-1]), gv, gv])
+    return float(_distance_at(index, ku, kv, np.asarray(control_points, dtype=np.float64), u, v).max())
+
+
+def _even_params(knots: np.ndarray, per_quad: int) -> np.ndarray:
+    """`per_quad` parameters per unit along the knots' domain, both ends included (float64)."""
+    lo, hi = float(knots[0]), float(knots[-1])
+    return np.linspace(lo, hi, max(int(np.ceil((hi - lo) * per_quad)), 1) + 1)
 
 
 def _distance_at(index: MeshIndex, ku, kv, cp, u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -440,32 +440,74 @@ def test_patches_fitted_in_two_processes_are_bit_for_bit_those_of_one():
         assert np.linalg.norm(own - centres[k]) < np.linalg.norm(own - centres[1 - k])
 
 
-def _refined_on_plane_with_raised_border(**options):
-    """A 4 mm plane fitted inside fixed borders, the border along u = 0 held 0.1 mm above it: what no
-    refinement inside can take off."""
+def _refined_on_plane(*, border_mm: float = 0.0, fold_mm: float = 0.0, **options):
+    """A 4 mm plane fitted inside fixed borders: the border along u = 0 held `border_mm` above it, and
+    two samples at its middle `fold_mm` above and below it (a fold of the data): what no refinement inside
+    can take off."""
     from cam.fit.refine import fit_refined
 
     L = 4.0
     MV, MF = triangle_mesh(lambda s, t: np.stack([s, t, np.zeros_like(s)], -1), np.linspace(0, L, 41),
                            np.linspace(0, L, 41))
+    P = np.concatenate([MV, [[2.0, 2.0, fold_mm], [2.0, 2.0, -fold_mm]]]) if fold_mm else MV
     S, T = np.meshgrid(np.linspace(0, L, 4), np.linspace(0, L, 4), indexing="ij")
     cp = np.stack([S, T, np.zeros_like(S)], -1)
-    cp[0, :, 2] = 0.1
+    cp[0, :, 2] = border_mm
     knots = np.array([0.0] * 4 + [1.0] * 4)
-    return fit_refined(MV, np.tile([0.0, 0.0, 1.0], (len(MV), 1)), MV[:, 0] / L, MV[:, 1] / L, knots_u=knots,
+    return fit_refined(P, np.tile([0.0, 0.0, 1.0], (len(P), 1)), P[:, 0] / L, P[:, 1] / L, knots_u=knots,
                        knots_v=knots, control_points=cp, fix_border=True, tolerance_mm=0.032, lengths_mm=(L, L),
                        mesh=mesh_index(MV, MF), **options)
 
 
 def test_a_round_that_takes_nothing_off_the_largest_distance_ends_the_refinement():
-    # The largest distance is the fixed border's own: every round leaves it at 0.1 mm. Without the rule
-    # (min_drop=0) two more rounds, each with more control points, are spent on it.
-    done = _refined_on_plane_with_raised_border()
-    spent = _refined_on_plane_with_raised_border(min_drop=0.0)
-    assert done.unrefined.max_error == pytest.approx(0.1, abs=1e-9)
-    assert done.rounds == 1 and spent.rounds == 3
-    assert done.fit.max_error == pytest.approx(spent.fit.max_error, abs=1e-9)
-    assert spent.fit.control_points.size > done.fit.control_points.size
+    # The largest distance is the data's own: two samples 0.2 mm apart on one normal leave the surface
+    # 0.1 mm from each whatever its knots. Without the rule (min_drop=0) more rounds, each with more
+    # control points, are spent on it.
+    done = _refined_on_plane(fold_mm=0.1)
+    spent = _refined_on_plane(fold_mm=0.1, min_drop=0.0)
+    assert done.unrefined.max_error == pytest.approx(0.1, abs=1e-6)
+    assert done.rounds == 1 and spent.rounds > 1
+    assert done.fit.max_error == pytest.approx(spent.fit.max_error, abs=1e-6)
+
+
+def test_a_held_border_beyond_the_tolerance_is_not_refined_for():
+    # The border along u = 0 lies 0.1 mm off the mesh: the surface stays 0.1 mm off whatever its knots
+    # (the border is held), so no round is tried; 0.02 mm off, within the tolerance, rounds go on as before.
+    held = _refined_on_plane(border_mm=0.1)
+    assert held.rounds == 0 and held.fit is held.unrefined
+    assert held.fit.max_error == pytest.approx(0.1, abs=1e-9)
+    near = _refined_on_plane(border_mm=0.02, fold_mm=0.1)
+    assert near.rounds >= 1
+
+
+def test_the_border_distance_is_what_every_refinement_keeps():
+    # A flat net 4 x 3 quads whose border control points are raised: the distance of its border from the
+    # flat mesh is the border's own height, found among the points surface_peaks samples, and knot
+    # insertion (the surface unchanged) leaves it where it is.
+    from cam.fit.measure import border_distance, surface_peaks
+    from cam.spline.knots import refine_surface
+
+    rng = np.random.default_rng(7)
+    MV, MF = triangle_mesh(lambda s, t: np.stack([s, t, np.zeros_like(s)], -1), np.linspace(-1, 5, 61),
+                           np.linspace(-1, 4, 51))
+    index = mesh_index(MV, MF)
+    ku, kv = np.array([0.0] * 4 + [2.0] + [4.0] * 4), np.array([0.0] * 4 + [3.0] * 4)
+    S, T = np.meshgrid(np.linspace(0, 4, 5), np.linspace(0, 3, 4), indexing="ij")
+    cp = np.stack([S, T, np.zeros_like(S)], -1)
+    cp[:, 0, 2] = rng.uniform(0.0, 0.2, 5)  # the side v = 0: a cubic B-spline curve of these heights
+    cp[1:-1, 1:-1, 2] = rng.uniform(-0.3, 0.3, (3, 2))
+    found = border_distance(index, ku, kv, cp)
+    # Oracle: the side's heights on a dense line (the mesh is the plane z = 0 under all of it).
+    from cam.spline.basis import evaluate_surface
+    u = np.linspace(0, 4, 4001)
+    side = evaluate_surface(ku, kv, cp, u, np.zeros_like(u), order=0)[(0, 0)]
+    assert found <= np.abs(side[:, 2]).max() + 1e-12
+    assert found == pytest.approx(np.abs(side[:, 2]).max(), abs=2e-3)
+    assert surface_peaks(index, ku, kv, cp)[2].max() >= found
+    ku2, kv2, cp2 = refine_surface(ku, kv, cp, target_u=np.r_[ku[:4], 1.0, 2.0, 3.0, ku[-4:]],
+                                   target_v=np.r_[kv[:4], 1.5, kv[-4:]])
+    assert border_distance(index, ku2, kv2, cp2) == pytest.approx(found, abs=1e-12)
+    assert surface_peaks(index, ku2, kv2, cp2)[2].max() >= found
 
 
 def test_a_free_fit_judged_along_its_sides_is_not_refined_for_its_inside():
