@@ -118,7 +118,7 @@ class SetupPart:
 
 
 def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_radius_mm: float,
-               closest: bool = True) -> SetupPart:
+               closest: bool = True, cell_mm: float | None = None) -> SetupPart:
     """The closed part (part frame, outward) moved into the setup's machine frame, for a ball of this radius.
 
     Parameters
@@ -132,6 +132,9 @@ def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_ra
     closest : bool
         Build the closest-point index too (`SetupPart.nearest`); reach (`SetupPart.reaches`) needs only
         the drop-cutter's, and the setup choice asks it of a dozen candidate axes.
+    cell_mm : float or None
+        The drop-cutter index's bucket size (`cam.mesh.dropcutter.drop_index`; None: its default). Heights
+        and reach are the same for any size: coarser buckets build faster and answer each query slower.
 
     Returns
     -------
@@ -141,5 +144,5 @@ def setup_part(vertices: np.ndarray, faces: np.ndarray, setup: Setup, *, tool_ra
     F = np.asarray(faces, dtype=np.int64)
     # Every triangle, not only those facing the tool (enough for a valid solid): a reconstructed mesh can
     # fold over itself, and the README example's did, where a down-facing triangle is met first.
-    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm),
+    return SetupPart(setup=setup, index=drop_index(V, F, radius_mm=tool_radius_mm, cell_mm=cell_mm),
                      mesh=mesh_index(V, F) if closest else None, floor_z=float(V[:, 2].min()))

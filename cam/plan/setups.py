@@ -74,7 +74,7 @@ def setup_for_axis(setup_id: int, axis: np.ndarray, vertices: np.ndarray) -> Set
 
 
 def reachable(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, setup: Setup, *,
-              tool_radius_mm: float) -> np.ndarray:
+              tool_radius_mm: float, cell_mm: float | None = None) -> np.ndarray:
     """Which samples the ball reaches from `setup`.
 
     Parameters
@@ -85,12 +85,14 @@ def reachable(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, 
         The closed part, part frame, outward.
     setup : Setup
     tool_radius_mm : float
+    cell_mm : float or None
+        The drop-cutter index's bucket size (`cam.plan.part.setup_part`): the same answer for any.
 
     Returns
     -------
     (k,) bool
     """
-    part = setup_part(vertices, faces, setup, tool_radius_mm=tool_radius_mm, closest=False)
+    part = setup_part(vertices, faces, setup, tool_radius_mm=tool_radius_mm, closest=False, cell_mm=cell_mm)
     return part.reaches(setup.to_machine(samples.points), setup.to_machine(samples.normals, direction=True))
 
 
@@ -151,7 +153,10 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
     few = samples.subset(slice(None, None, max(len(samples.area) // _SCORE_SAMPLES, 1)))
     total = float(few.area.sum())
     trial = [given[k] if k < len(given) else setup_for_axis(0, axis, vertices) for k, axis in enumerate(axes)]
-    reaches = map_forked(lambda k, _cc: reachable(few, vertices, faces, trial[k], tool_radius_mm=tool_radius_mm),
+    # A few thousand queries per candidate: buckets a radius wide build in a sixth of the default's time
+    # (a 195k-triangle mesh: 0.10 s against 0.66 s) and answer them about as fast.
+    reaches = map_forked(lambda k, _cc: reachable(few, vertices, faces, trial[k], tool_radius_mm=tool_radius_mm,
+                                                  cell_mm=tool_radius_mm),
                          len(trial), processes=processes, check_cancel=check_cancel)
     candidates = list(zip(trial, reaches))
     chosen: list[tuple[Setup, np.ndarray]] = []

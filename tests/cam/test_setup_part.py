@@ -78,3 +78,28 @@ def test_a_part_made_for_reach_alone_reaches_the_same_and_refuses_closest_points
     assert part.reaches(points, normals).any() and not part.reaches(points, normals).all()
     with pytest.raises(ValueError, match="reach alone"):
         lean.nearest(np.array([[5.0, 5.0, 20.0]]))
+
+
+def test_reach_and_heights_do_not_depend_on_the_bucket_size():
+    # The setup choice scores its candidates with buckets a radius wide (they build faster): the same
+    # answers, bit for bit, as the default quarter radius, on a part with a pocket and a slanted face.
+    import manifold3d as mf
+
+    solid = mf.Manifold.cube([20.0, 16.0, 10.0]) - mf.Manifold.cube([8.0, 6.0, 6.0]).translate([4.0, 5.0, 5.0])
+    solid = solid - mf.Manifold.cube([30.0, 30.0, 30.0]).rotate([0.0, 35.0, 0.0]).translate([14.0, -5.0, 6.0])
+    mesh = solid.to_mesh()
+    V, F = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    shape = trimesh.Trimesh(V, F)
+    points, face = trimesh.sample.sample_surface_even(shape, 3000, seed=2)
+    normals = shape.face_normals[face]
+    rng = np.random.default_rng(3)
+    xy = rng.uniform([-4.0, -4.0], [24.0, 20.0], (4000, 2))
+    setup = Setup(1, np.eye(3), np.zeros(3))
+    fine = setup_part(V, F, setup, tool_radius_mm=R, closest=False)
+    reaches = fine.reaches(points, normals)
+    assert reaches.any() and not reaches.all()
+    for cell in (R, 2.5 * R):
+        coarse = setup_part(V, F, setup, tool_radius_mm=R, closest=False, cell_mm=cell)
+        assert coarse.index.members.size < fine.index.members.size
+        np.testing.assert_array_equal(coarse.reaches(points, normals), reaches)
+        np.testing.assert_array_equal(coarse.drop(xy), fine.drop(xy))
