@@ -154,7 +154,12 @@ def _clear_queries(xy, limit, triangles, normals, top, lo, hi, r, origin, cell, 
     """Fill clear (n,) with whether no triangle lifts the ball over each xy (n, 2) above limit (n,): the
     drop-cutter height is the highest of the triangles' exact contacts, and a triangle whose bound is not
     above the limit cannot be the one that exceeds it, so `_drop_queries`'s height <= limit without
-    finding the height."""
+    finding the height.
+
+    `members` lists each cell's triangles highest first (`DropIndex.by_top`): once a triangle's top plus
+    the largest bound term, sqrt(r * r), is not above the limit, no bound after it is (d2 >= 0 makes every
+    rounded sqrt(r * r - d2) at most that), and the query ends there."""
+    reach = math.sqrt(r * r)
     for i in prange(xy.shape[0]):
         qx, qy, z = xy[i, 0], xy[i, 1], limit[i]
         first, last = _bucket(qx, qy, origin, cell, shape, starts)
@@ -162,6 +167,8 @@ def _clear_queries(xy, limit, triangles, normals, top, lo, hi, r, origin, cell, 
         ok = True
         for k in range(first, last):
             tri = members[k]
+            if top[tri] + reach <= z:  # and every triangle after it: none can bound above the limit
+                break
             gx = max(max(lo[tri, 0] - qx, qx - hi[tri, 0]), 0.0)
             gy = max(max(lo[tri, 1] - qy, qy - hi[tri, 1]), 0.0)
             d2 = gx * gx + gy * gy
@@ -206,7 +213,7 @@ def surface_queries(*args) -> None:
 
 
 @njit(cache=True)
-def _bucket_boxes(i0, j0, i1, j1, columns, cells, starts, members):
+def _bucket_boxes(i0, j0, i1, j1, ids, columns, cells, starts, members):
     for t in range(i0.size):  # count each cell's boxes
         for i in range(i0[t], i1[t] + 1):
             for j in range(j0[t], j1[t] + 1):
@@ -218,21 +225,23 @@ def _bucket_boxes(i0, j0, i1, j1, columns, cells, starts, members):
         for i in range(i0[t], i1[t] + 1):
             for j in range(j0[t], j1[t] + 1):
                 c = i * columns + j
-                members[fill[c]] = t
+                members[fill[c]] = ids[t]
                 fill[c] += 1
 
 
-def bucket_boxes(i0: np.ndarray, j0: np.ndarray, i1: np.ndarray, j1: np.ndarray, shape: tuple[int, int]
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def bucket_boxes(i0: np.ndarray, j0: np.ndarray, i1: np.ndarray, j1: np.ndarray, shape: tuple[int, int], *,
+                 ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The boxes (cell ranges i0..i1 x j0..j1, inclusive, int (m,)) each cell of a grid of `shape` meets.
 
     Returns (starts, members): int64 (shape[0] shape[1] + 1,) and (Σ box cells,); the boxes of cell
-    c = i shape[1] + j are members[starts[c]:starts[c + 1]], in ascending box order (a counting sort: no
-    sort, no array of every (box, cell) pair beside the result)."""
+    c = i shape[1] + j are members[starts[c]:starts[c + 1]], in the order the boxes come (a counting sort:
+    no sort, no array of every (box, cell) pair beside the result). Members are the boxes' positions
+    (int64), or `ids[position]` (int (m,), members of its dtype) where given."""
     cells = int(shape[0]) * int(shape[1])
     counts = (i1 - i0 + 1) * (j1 - j0 + 1)
     starts = np.zeros(cells + 1, dtype=np.int64)
-    members = np.empty(int(counts.sum()), dtype=np.int64)
+    ids = np.arange(len(i0), dtype=np.int64) if ids is None else np.ascontiguousarray(ids)
+    members = np.empty(int(counts.sum()), dtype=ids.dtype)
     as64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)
-    _bucket_boxes(as64(i0), as64(j0), as64(i1), as64(j1), int(shape[1]), cells, starts, members)
+    _bucket_boxes(as64(i0), as64(j0), as64(i1), as64(j1), ids, int(shape[1]), cells, starts, members)
     return starts, members

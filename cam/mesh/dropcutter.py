@@ -48,7 +48,10 @@ class DropIndex:
     shape : tuple of int
         Cells along x and y.
     starts, members : (cells + 1,) int64, (k,) int64
-        CSR buckets: the triangles near cell c are members[starts[c]:starts[c + 1]].
+        CSR buckets: the triangles near cell c are members[starts[c]:starts[c + 1]], in triangle order.
+    by_top : (k,) int32
+        The same buckets (same starts), each cell's triangles highest `top` first (ties in triangle order):
+        `ball_clears` stops a query at the first that cannot reach its limit.
     top : (m,) float64
         Highest corner of each triangle, mm.
     lo, hi : (m, 2) float64
@@ -66,6 +69,7 @@ class DropIndex:
     shape: tuple[int, int]
     starts: np.ndarray
     members: np.ndarray
+    by_top: np.ndarray
 
 
 def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, closed: bool = False,
@@ -115,9 +119,12 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
     i0, j0 = np.floor((lo - origin) / cell).astype(np.int64).T
     i1, j1 = np.floor((hi - origin) / cell).astype(np.int64).T
     starts, members = bucket_boxes(i0, j0, i1, j1, shape)
-    return DropIndex(triangles=tri, normals=normals, top=tri[:, :, 2].max(axis=1), lo=box_lo, hi=box_hi,
+    top = tri[:, :, 2].max(axis=1)
+    high = np.argsort(-top, kind="stable")
+    _, by_top = bucket_boxes(i0[high], j0[high], i1[high], j1[high], shape, ids=high.astype(np.int32))
+    return DropIndex(triangles=tri, normals=normals, top=top, lo=box_lo, hi=box_hi,
                      radius_mm=float(radius_mm), origin=origin, cell_mm=cell,
-                     shape=shape, starts=starts, members=members)
+                     shape=shape, starts=starts, members=members, by_top=by_top)
 
 
 def drop_ball(index: DropIndex, xy: np.ndarray, *, contact: bool = False
@@ -145,14 +152,15 @@ def drop_ball(index: DropIndex, xy: np.ndarray, *, contact: bool = False
     q = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
     z = np.full(len(q), -np.inf)
     p = np.full((len(q), 3), np.nan)
-    drop_queries(q, *_ball_arrays(index), z, p)
+    drop_queries(q, *_ball_arrays(index, index.members), z, p)
     return (z, p) if contact else z
 
 
-def _ball_arrays(index: DropIndex) -> tuple:
-    """The index as the ball kernels (`_dropkernel.drop_queries`, `clear_queries`) take it, after the queries."""
+def _ball_arrays(index: DropIndex, members: np.ndarray) -> tuple:
+    """The index as the ball kernels (`_dropkernel.drop_queries`, `clear_queries`) take it, after the queries,
+    with `members` (`index.members` or `index.by_top`) as its buckets."""
     return (index.triangles, index.normals, index.top, index.lo, index.hi, index.radius_mm, index.origin,
-            index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts, index.members)
+            index.cell_mm, np.asarray(index.shape, dtype=np.int64), index.starts, members)
 
 
 def ball_clears(index: DropIndex, xy: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -178,7 +186,7 @@ def ball_clears(index: DropIndex, xy: np.ndarray, limit: np.ndarray) -> np.ndarr
     q = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
     z = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, dtype=np.float64), (len(q),)))
     clear = np.zeros(len(q), dtype=np.bool_)
-    clear_queries(q, z, *_ball_arrays(index), clear)
+    clear_queries(q, z, *_ball_arrays(index, index.by_top), clear)
     return clear
 
 

@@ -100,3 +100,16 @@ def test_ball_clears_answers_what_the_drop_height_answers():
     clear = ball_clears(index, xy, limit)
     np.testing.assert_array_equal(clear, height <= limit)
     assert 0.2 < clear.mean() < 0.8
+
+
+def test_the_clear_queries_buckets_hold_each_cells_triangles_highest_first():
+    # `ball_clears` stops a query at the first triangle of its cell too low to reach the limit: the second
+    # bucketing must hold the same triangles per cell as the first, highest first.
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    rng = np.random.default_rng(5)
+    index = drop_index(mesh.vertices * (1 + 0.1 * rng.random((len(mesh.vertices), 1))), mesh.faces, radius_mm=2.0)
+    assert index.by_top.size == index.members.size
+    for c in range(len(index.starts) - 1):
+        cell = slice(index.starts[c], index.starts[c + 1])
+        assert sorted(index.by_top[cell].tolist()) == index.members[cell].tolist()
+        assert np.all(np.diff(index.top[index.by_top[cell]]) <= 0)
