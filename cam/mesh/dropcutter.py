@@ -49,9 +49,10 @@ class DropIndex:
         Cells along x and y.
     starts, members : (cells + 1,) int64, (k,) int64
         CSR buckets: the triangles near cell c are members[starts[c]:starts[c + 1]], in triangle order.
-    by_top : (k,) int32
+    by_top : (k,) int32, or None
         The same buckets (same starts), each cell's triangles highest `top` first (ties in triangle order):
-        `ball_clears` stops a query at the first that cannot reach its limit.
+        `ball_clears` stops a query at the first that cannot reach its limit. None: built without
+        (`drop_index(clears=False)`).
     top : (m,) float64
         Highest corner of each triangle, mm.
     lo, hi : (m, 2) float64
@@ -69,11 +70,11 @@ class DropIndex:
     shape: tuple[int, int]
     starts: np.ndarray
     members: np.ndarray
-    by_top: np.ndarray
+    by_top: np.ndarray | None
 
 
 def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, closed: bool = False,
-               cell_mm: float | None = None) -> DropIndex:
+               cell_mm: float | None = None, clears: bool = True) -> DropIndex:
     """Bucket a triangle mesh for `drop_ball` with a ball of radius `radius_mm`.
 
     Parameters
@@ -89,7 +90,11 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
         such a triangle's edge or corner), so the others are left out. False keeps every triangle (an
         open scan, whose lower side may be reached past its border).
     cell_mm : float, optional
-        Bucket size; default a quarter of the radius, at least a thousandth of the part's extent.
+        Bucket size; default a quarter of the radius, at least a thousandth of the part's extent. The
+        answers are the same for any size: coarser buckets build faster and answer each query slower.
+    clears : bool
+        Bucket the triangles a second time for `ball_clears` (`DropIndex.by_top`); False: an index for
+        `drop_ball` and `surface_height` alone, built in about half the time.
 
     Returns
     -------
@@ -120,8 +125,10 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
     i1, j1 = np.floor((hi - origin) / cell).astype(np.int64).T
     starts, members = bucket_boxes(i0, j0, i1, j1, shape)
     top = tri[:, :, 2].max(axis=1)
-    high = np.argsort(-top, kind="stable")
-    _, by_top = bucket_boxes(i0[high], j0[high], i1[high], j1[high], shape, ids=high.astype(np.int32))
+    by_top = None
+    if clears:
+        high = np.argsort(-top, kind="stable")
+        _, by_top = bucket_boxes(i0[high], j0[high], i1[high], j1[high], shape, ids=high.astype(np.int32))
     return DropIndex(triangles=tri, normals=normals, top=top, lo=box_lo, hi=box_hi,
                      radius_mm=float(radius_mm), origin=origin, cell_mm=cell,
                      shape=shape, starts=starts, members=members, by_top=by_top)
@@ -183,6 +190,8 @@ def ball_clears(index: DropIndex, xy: np.ndarray, limit: np.ndarray) -> np.ndarr
     -------
     (n,) bool
     """
+    if index.by_top is None:
+        raise ValueError("this index was built for drop heights alone (drop_index(clears=False))")
     q = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
     z = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, dtype=np.float64), (len(q),)))
     clear = np.zeros(len(q), dtype=np.bool_)

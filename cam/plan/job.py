@@ -193,7 +193,10 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
     order = order_passes(tips)
     ordered = [tips[k][::-1] if turned else tips[k] for k, turned in order]
     # The ball grown by the rapid margin, lowered where a rapid ends: its tip height keeps that margin.
-    grown = drop_index(part.mesh.vertices, part.mesh.faces, radius_mm=r + toolpath.rapid_margin_mm)
+    # Both link indexes answer a few heights per link: buckets as wide as their ball build fast (the same
+    # heights), and no second bucketing for clear queries.
+    grown_mm = r + toolpath.rapid_margin_mm
+    grown = drop_index(part.mesh.vertices, part.mesh.faces, radius_mm=grown_mm, cell_mm=grown_mm, clears=False)
 
     def safe_z(xy: np.ndarray) -> float:
         z = drop_ball(grown, np.asarray(xy, dtype=np.float64)[None])[0]
@@ -201,8 +204,8 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
 
     # A rapid across is checked at points LINK_STEP_MM apart, by a ball grown by half that more: between
     # two of them the real ball keeps the whole margin.
-    link = drop_index(part.mesh.vertices, part.mesh.faces,
-                      radius_mm=r + toolpath.rapid_margin_mm + 0.5 * LINK_STEP_MM)
+    link_mm = grown_mm + 0.5 * LINK_STEP_MM
+    link = drop_index(part.mesh.vertices, part.mesh.faces, radius_mm=link_mm, cell_mm=link_mm, clears=False)
 
     def travel_z(a: np.ndarray, b: np.ndarray) -> float:
         n = max(int(np.ceil(float(np.linalg.norm(b - a)) / LINK_STEP_MM)), 1)

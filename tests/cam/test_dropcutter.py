@@ -113,3 +113,16 @@ def test_the_clear_queries_buckets_hold_each_cells_triangles_highest_first():
         cell = slice(index.starts[c], index.starts[c + 1])
         assert sorted(index.by_top[cell].tolist()) == index.members[cell].tolist()
         assert np.all(np.diff(index.top[index.by_top[cell]]) <= 0)
+
+
+def test_an_index_for_heights_alone_gives_the_same_heights_and_refuses_clear_queries():
+    from cam.mesh.dropcutter import ball_clears
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    full = drop_index(mesh.vertices, mesh.faces, radius_mm=2.0)
+    lean = drop_index(mesh.vertices, mesh.faces, radius_mm=2.0, cell_mm=2.0, clears=False)
+    xy = np.random.default_rng(8).uniform(-13, 13, (3000, 2))
+    np.testing.assert_array_equal(drop_ball(lean, xy), drop_ball(full, xy))
+    assert lean.by_top is None
+    with pytest.raises(ValueError, match="drop heights alone"):
+        ball_clears(lean, xy, np.zeros(len(xy)))
