@@ -43,7 +43,7 @@ from cam.plan.part import SetupPart, setup_part
 from cam.plan.patch import ROUNDING_MM
 from cam.plan.patch_job import PatchesPlan, plan_patches, program_name
 from cam.plan.scallop import flat_spacing
-from cam.plan.setups import choose_setups
+from cam.plan.setups import choose_setups, setup_reach
 from cam.spline.surface import BSplineSurface
 
 __all__ = ["JobPlan", "ProgramPlan", "SurfacesIn", "plan_job"]
@@ -274,12 +274,13 @@ def plan_job(vertices: np.ndarray, faces: np.ndarray, tool: ToolParams, toolpath
     width = float(flat_spacing(scallop_mm, r))
     progress(0.01, "sampling the part")
     samples = sample_surface(vertices, faces, spacing_mm=width / 3)
-    choice = choose_setups(samples, vertices, faces, tool_radius_mm=r, max_setups=toolpath.max_setups,
+    setups = choose_setups(samples, vertices, faces, tool_radius_mm=r, max_setups=toolpath.max_setups,
                            given=list(given_setups), processes=processes, check_cancel=check_cancel)
+    check_cancel()
+    parts = [setup_part(vertices, faces, s, tool_radius_mm=r) for s in setups]
+    choice = setup_reach(samples, parts)
     if not choice.setups or not choice.any().any():
         raise GeometryError(f"no setup reaches any of the part with a ball of radius {r} mm")
-    check_cancel()
-    parts = [setup_part(vertices, faces, s, tool_radius_mm=r) for s in choice.setups]
     progress(0.05, "patch passes")
     patch_plan, passes = _patch_passes(surfaces, choice.setups, parts, tool, toolpath, chord_mm=chord_mm,
                                        processes=processes, check_cancel=check_cancel,

@@ -17,9 +17,9 @@ import numpy as np
 from cam import CheckCancel, map_forked
 from cam.gcode.setup import Setup
 from cam.mesh.samples import SurfaceSamples
-from cam.plan.part import setup_part
+from cam.plan.part import SetupPart, setup_part
 
-__all__ = ["SetupReach", "choose_setups", "reachable", "rotation_to_z", "setup_for_axis"]
+__all__ = ["SetupReach", "choose_setups", "reachable", "rotation_to_z", "setup_for_axis", "setup_reach"]
 
 _SCORE_SAMPLES = 8000
 
@@ -118,7 +118,7 @@ def _candidate_axes(normals: np.ndarray, area: np.ndarray, given: list[Setup], r
 def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarray, *, tool_radius_mm: float,
                   max_setups: int, given: list[Setup] = (), rng: np.random.Generator | None = None,
                   min_gain: float = 1e-3, processes: int = 1, check_cancel: CheckCancel | None = None
-                  ) -> SetupReach:
+                  ) -> list[Setup]:
     """Up to `max_setups` setups that together reach the most of the part, greedily.
 
     Parameters
@@ -142,8 +142,9 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
 
     Returns
     -------
-    SetupReach
-        Ids are 1, 2, ... in the order chosen.
+    list of Setup
+        Ids are 1, 2, ... in the order chosen (their reach on all the samples: `setup_reach`, with the
+        parts the caller plans on).
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     check_cancel = check_cancel or (lambda: None)
@@ -174,7 +175,12 @@ def choose_setups(samples: SurfaceSamples, vertices: np.ndarray, faces: np.ndarr
         setup, reach = candidates.pop(best)
         chosen.append((Setup(id=len(chosen) + 1, rotation=setup.rotation, translation=setup.translation), reach))
         covered |= reach
-    setups = [s for s, _ in chosen]
-    reach = map_forked(lambda k, _cc: reachable(samples, vertices, faces, setups[k], tool_radius_mm=tool_radius_mm),
-                       len(setups), processes=processes, check_cancel=check_cancel)
-    return SetupReach(setups=setups, reach=reach)
+    return [s for s, _ in chosen]
+
+
+def setup_reach(samples: SurfaceSamples, parts: list[SetupPart]) -> SetupReach:
+    """The setups of `parts` (`cam.plan.part.setup_part`, one per setup) and which samples (part frame) each
+    one's ball reaches."""
+    return SetupReach(setups=[p.setup for p in parts],
+                      reach=[p.reaches(p.setup.to_machine(samples.points),
+                                       p.setup.to_machine(samples.normals, direction=True)) for p in parts])
