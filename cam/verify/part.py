@@ -86,7 +86,9 @@ def _reach(vertices: np.ndarray, faces: np.ndarray, samples: SurfaceSamples, set
         p, n = _frame(samples, setup)
         V = setup.to_machine(vertices)
         centre = p + (r + REACH_TOL_MM) * n
-        index = drop_index(V, faces, radius_mm=r)
+        # One query per sample: buckets half a radius wide build in a fifth of the default's time and answer
+        # a little slower (a 195k-triangle mesh, as many samples: 0.66 s against 1.26 s); the same answers.
+        index = drop_index(V, faces, radius_mm=r, cell_mm=0.5 * r)
         # Whether the ball there clears the part (the drop-cutter height at most the centre's): answered
         # without the heights, which is most of the cost.
         clear, = _in_chunks(lambda s, index=index, centre=centre: (
