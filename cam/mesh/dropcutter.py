@@ -6,7 +6,9 @@ form below) or on a vertex. The ball centre height over (x, y) is the highest of
 triangles within r of (x, y); the ball lowered from above sweeps the cylinder over it, so the shank of a
 ball-end mill lowered there is clear of the part too. Exact: every candidate triangle is tested, none is
 sampled. Triangles are bucketed on an xy grid by their bounding boxes grown by r; each query runs through
-its cell's triangles in compiled code (`_dropkernel`), in parallel over the queries.
+its cell's triangles in compiled code (`_dropkernel`), in parallel over the queries. A clear query (`ball_clears`:
+is the ball clear at this height?) runs through a second bucketing of the same cells, highest triangle first,
+and stops at the first whose top is too low to lift the ball above its limit.
 
 Edge contact: along an edge whose horizontal length is L and slope m = dz/L, at horizontal distance d
 from the query's vertical line, the centre height at edge parameter σ (horizontal, from the foot of the
