@@ -145,6 +145,21 @@ def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -
     return out
 
 
+def _lift(here: np.ndarray | None, first: np.ndarray, up: float | None, down: float, *, clearance_z: float,
+          travel_z) -> list[tuple[list[float] | np.ndarray, int]]:
+    """The moves (point, kind) of a lift from tip `here` (None: the program's start) to tip `first`: feed up to
+    `up`, rapid up to the link's travel height and across, rapid down to `down` and plunge to `first`."""
+    if here is None:
+        moves = [([first[0], first[1], clearance_z], RAPID)]
+    else:
+        across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down), clearance_z)
+        moves = [([here[0], here[1], up], FEED)]
+        if across > up:
+            moves.append(([here[0], here[1], across], RAPID))
+        moves.append(([first[0], first[1], across], RAPID))
+    return [*moves, ([first[0], first[1], down], RAPID), (first, PLUNGE)]
+
+
 def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, stay_down,
                  ride=None, travel_z=None, owner: int = -1) -> MoveList:
     """One program's moves from passes given in cutting order (tool tips, machine frame).
@@ -195,26 +210,17 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
             continue
         first = tips[0]
         if here is not None and stay_down(here, first):
-            add(first, FEED)
+            link = [first]
         else:
             down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
             up = None if here is None else min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
             link = None if here is None or ride is None else ride(here, first, (up - here[2]) + (down - first[2]))
-            if link is not None:
-                for p in link:
-                    add(p, FEED)
-            else:
-                if here is None:
-                    add([first[0], first[1], clearance_z], RAPID)
-                else:
-                    across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down),
-                                                                       clearance_z)
-                    add([here[0], here[1], up], FEED)
-                    if across > up:
-                        add([here[0], here[1], across], RAPID)
-                    add([first[0], first[1], across], RAPID)
-                add([first[0], first[1], down], RAPID)
-                add(first, PLUNGE)
+        if link is not None:
+            for p in link:
+                add(p, FEED)
+        else:
+            for p, kind in _lift(here, first, up, down, clearance_z=clearance_z, travel_z=travel_z):
+                add(p, kind)
         for p in tips[1:]:
             add(p, FEED)
         here = tips[-1]
