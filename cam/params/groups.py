@@ -146,7 +146,8 @@ class ToolpathParams(_Group):
     strategy: Literal["adaptive", "paper"] = Field("adaptive", description="adaptive: variable spacing and corner "
                                                     "excursions; paper: Algorithm 1 as published.")
     clearance_mm: float = Field(5.0, gt=0, le=500, description="Rapid height above the part.")
-    retract_mm: float = Field(1.0, gt=0, le=100, description="Lift between passes of one patch.")
+    retract_mm: float = Field(1.0, gt=0, le=100, description="How far a lift feeds off the part before its rapid "
+                              "starts (and an approach feeds on).")
     min_reach_fraction: float = Field(0.5, ge=0, le=1, description="A patch whose reachable share is below this "
                                       "is reported unmachined for the setup.")
     verify_samples_per_interval: int = Field(12, ge=4, le=100, description="verify: samples of the part per "

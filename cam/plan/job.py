@@ -9,8 +9,9 @@
    every sample that setup reaches and no earlier pass left within the target.
 4. With a rest ball (`tool.rest_radius_mm`), the same for what the main ball leaves over the target,
    in a program of its own per setup.
-5. Linking: passes in greedy order, feeding across where that is short and clear, otherwise up to the
-   rapid margin, across at the clearance height and down again.
+5. Linking (`link_part.link_setup`): passes in greedy order, feeding across or riding over the part where
+   that is short and clear, otherwise off the part to where a rapid keeps the rapid margin, across, and
+   down again.
 
 The planner measures what its passes leave on every sample (the ball's swept volume met by the
 sample's normal line); the bound a program header states is the largest of those on the samples it
@@ -32,13 +33,13 @@ from cam import (
 )
 from cam.gcode.moves import MoveList
 from cam.gcode.setup import Setup
-from cam.mesh.dropcutter import drop_ball, drop_index
 from cam.mesh.samples import SurfaceSamples, sample_surface
 from cam.params import ToolParams, ToolpathParams
 from cam.plan.coverage import left_on_samples
 from cam.plan.finish import finish_setup
-from cam.plan.lines import GOUGE_TOL_MM, follow_part, ride_over
-from cam.plan.link import link_on_part, order_passes
+from cam.plan.lines import follow_part
+from cam.plan.link import order_passes
+from cam.plan.link_part import link_setup
 from cam.plan.part import SetupPart, setup_part
 from cam.plan.patch import ROUNDING_MM
 from cam.plan.patch_job import PatchesPlan, plan_patches, program_name
@@ -180,10 +181,6 @@ def _finish_rest_of_part(parts: list[SetupPart], samples: SurfaceSamples, reach:
     return stats
 
 
-#: Spacing of the points a link's rapid is checked at, mm.
-LINK_STEP_MM = 0.5
-
-
 def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: ToolpathParams, *,
              top_z: float, bound_mm: float, stats: dict) -> ProgramPlan:
     """Order and link one setup's passes for one ball into a program."""
@@ -192,42 +189,7 @@ def _program(part: SetupPart, passes: _Passes, name: str, role: str, toolpath: T
     names = [s for c, s in zip(passes.centres, passes.strategy) if len(c)]
     order = order_passes(tips)
     ordered = [tips[k][::-1] if turned else tips[k] for k, turned in order]
-    # The ball grown by the rapid margin, lowered where a rapid ends: its tip height keeps that margin.
-    # Both link indexes answer a few heights per link: buckets as wide as their ball build fast (the same
-    # heights), and no second bucketing for clear queries.
-    grown_mm = r + toolpath.rapid_margin_mm
-    grown = drop_index(part.mesh.vertices, part.mesh.faces, radius_mm=grown_mm, cell_mm=grown_mm, clears=False)
-
-    def safe_z(xy: np.ndarray) -> float:
-        z = drop_ball(grown, np.asarray(xy, dtype=np.float64)[None])[0]
-        return float(max(z, part.floor_z + r + toolpath.rapid_margin_mm) - r)
-
-    # A rapid across is checked at points LINK_STEP_MM apart, by a ball grown by half that more: between
-    # two of them the real ball keeps the whole margin.
-    link_mm = grown_mm + 0.5 * LINK_STEP_MM
-    link = drop_index(part.mesh.vertices, part.mesh.faces, radius_mm=link_mm, cell_mm=link_mm, clears=False)
-
-    def travel_z(a: np.ndarray, b: np.ndarray) -> float:
-        n = max(int(np.ceil(float(np.linalg.norm(b - a)) / LINK_STEP_MM)), 1)
-        xy = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
-        return float(max(drop_ball(link, xy).max(), part.floor_z + r + toolpath.rapid_margin_mm) - r)
-
-    lift = np.array([0.0, 0.0, r])
-
-    def stay_down(a: np.ndarray, b: np.ndarray) -> bool:
-        d = float(np.linalg.norm(b[:2] - a[:2]))
-        if d > 2.5 * r or abs(b[2] - a[2]) > r:
-            return False
-        return part.clear_between(a + lift, b + lift, tol_mm=GOUGE_TOL_MM)
-
-    def ride(a: np.ndarray, b: np.ndarray, budget_mm: float) -> np.ndarray | None:
-        if float(np.linalg.norm(b[:2] - a[:2])) > 2.5 * r:
-            return None
-        over = ride_over(part, a + lift, b + lift, budget_mm=budget_mm)
-        return None if over is None else over - lift
-
-    moves = link_on_part(ordered, clearance_z=top_z + toolpath.clearance_mm, retract_mm=toolpath.retract_mm,
-                         safe_z=safe_z, stay_down=stay_down, ride=ride, travel_z=travel_z)
+    moves = link_setup(part, ordered, toolpath, top_z=top_z)
     strategy = [names[k] for k, _ in order]
     return ProgramPlan(setup=part.setup, name=name, role=role, tool_radius_mm=r, passes=ordered,
                        strategy=strategy, moves=moves, bound_mm=bound_mm, stats=stats)

@@ -145,31 +145,40 @@ def order_passes(passes: list[np.ndarray], *, start: np.ndarray | None = None) -
     return out
 
 
-def _lift(here: np.ndarray | None, first: np.ndarray, up: float | None, down: float, *, clearance_z: float,
+def _lift(out: np.ndarray | None, into: np.ndarray, first: np.ndarray, *, clearance_z: float,
           travel_z) -> list[tuple[list[float] | np.ndarray, int]]:
-    """The moves (point, kind) of a lift from tip `here` (None: the program's start) to tip `first`: feed up to
-    `up`, rapid up to the link's travel height and across, rapid down to `down` and plunge to `first`."""
-    if here is None:
-        moves = [([first[0], first[1], clearance_z], RAPID)]
+    """The moves (point, kind) of a lift: feed along `out` (k, 3) (None: the program's start), rapid up to the
+    link's travel height and across, rapid down to the end of `into` (k, 3) and back along it to tip
+    `first` at the plunge feed."""
+    down = into[-1]
+    if out is None:
+        moves = [([down[0], down[1], clearance_z], RAPID)]
     else:
-        across = clearance_z if travel_z is None else min(max(travel_z(here[:2], first[:2]), up, down), clearance_z)
-        moves = [([here[0], here[1], up], FEED)]
-        if across > up:
-            moves.append(([here[0], here[1], across], RAPID))
-        moves.append(([first[0], first[1], across], RAPID))
-    return [*moves, ([first[0], first[1], down], RAPID), (first, PLUNGE)]
+        up = out[-1]
+        across = clearance_z if travel_z is None else min(max(travel_z(up[:2], down[:2]), up[2], down[2]),
+                                                          clearance_z)
+        moves = [(p, FEED) for p in out]
+        if across > up[2]:
+            moves.append(([up[0], up[1], across], RAPID))
+        moves.append(([down[0], down[1], across], RAPID))
+    return [*moves, (down, RAPID), *[(p, PLUNGE) for p in into[-2::-1]], (first, PLUNGE)]
 
 
-def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: float, safe_z, stay_down,
-                 ride=None, travel_z=None, owner: int = -1) -> MoveList:
+def _feed_length(tip: np.ndarray, way: np.ndarray) -> float:
+    """Length (mm) of the feed from tip (3,) along the points of `way` (k, 3)."""
+    return float(np.linalg.norm(np.diff(np.vstack([tip, way]), axis=0), axis=1).sum())
+
+
+def link_on_part(passes: list[np.ndarray], *, clearance_z: float, leave, stay_down, ride=None, travel_z=None,
+                 owner: int = -1) -> MoveList:
     """One program's moves from passes given in cutting order (tool tips, machine frame).
 
     Between two passes the tool feeds straight across when `stay_down(a, b)` allows it, else along
-    `ride(a, b, budget)` where that offers a link; otherwise it feeds up to the height where it clears the
-    part by the rapid margin (`safe_z(xy)`, at least `retract_mm` above the tip), rises in rapid to the
-    travel height of that link (`travel_z`, at most the clearance height), moves across, comes down in
-    rapid to the safe height over the next start and feeds down to it: rapids never pass closer to the
-    part than the margin.
+    `ride(a, b, budget)` where that offers a link; otherwise it feeds off the part along `leave(a)` to where
+    a rapid straight up keeps the rapid margin, rises in rapid to the travel height of that link
+    (`travel_z`, at most the clearance height), moves across, comes down in rapid to the end of
+    `leave(b)` and feeds back along it onto the next start: rapids never pass closer to the part than the
+    margin.
 
     Parameters
     ----------
@@ -177,16 +186,16 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
         Tool tips, mm, in cutting order.
     clearance_z : float
         Height of the first approach and the last retract, and the highest a link travels, mm.
-    retract_mm : float
-        Least height of a rapid's end above the tip it serves, mm.
-    safe_z : callable
-        safe_z(xy (2,)) -> tip height (mm) from which a ball lowered at xy keeps the rapid margin to the part.
+    leave : callable
+        leave(tip (3,)) -> (k, 3) tips (tip excluded, k >= 1): a feed off the part from tip whose last point
+        is where a rapid straight up keeps the rapid margin (at most `clearance_z` high); the way onto the
+        part at tip is the same, reversed.
     stay_down : callable
         stay_down(a (3,), b (3,)) -> bool: whether feeding straight from tip a to tip b is safe and short.
     ride : callable, optional
         ride(a (3,), b (3,), budget_mm) -> (k, 3) tips or None: a feed link from tip a that ends at tip b
-        (a excluded, b last), cuts nothing and is no longer than `budget_mm` (the feed up and down of the
-        lift it would replace). None: lift.
+        (a excluded, b last), cuts nothing and is no longer than `budget_mm` (the feed off and onto the part
+        of the lift it would replace). None: lift.
     travel_z : callable, optional
         travel_z(a_xy (2,), b_xy (2,)) -> tip height (mm) at which a rapid straight from over a to over b
         keeps the margin; None: links travel at the clearance height.
@@ -212,22 +221,23 @@ def link_on_part(passes: list[np.ndarray], *, clearance_z: float, retract_mm: fl
         if here is not None and stay_down(here, first):
             link = [first]
         else:
-            down = min(max(safe_z(first[:2]), first[2] + retract_mm), clearance_z)
-            up = None if here is None else min(max(safe_z(here[:2]), here[2] + retract_mm), clearance_z)
-            link = None if here is None or ride is None else ride(here, first, (up - here[2]) + (down - first[2]))
+            into = leave(first)
+            out = None if here is None else leave(here)
+            link = None if out is None or ride is None else ride(
+                here, first, _feed_length(here, out) + _feed_length(first, into))
         if link is not None:
             for p in link:
                 add(p, FEED)
         else:
-            for p, kind in _lift(here, first, up, down, clearance_z=clearance_z, travel_z=travel_z):
+            for p, kind in _lift(out, into, first, clearance_z=clearance_z, travel_z=travel_z):
                 add(p, kind)
         for p in tips[1:]:
             add(p, FEED)
         here = tips[-1]
     if here is not None:
-        up = max(safe_z(here[:2]), here[2] + retract_mm)
-        add([here[0], here[1], min(up, clearance_z)], FEED)
-        add([here[0], here[1], clearance_z], RAPID)
+        for p in leave(here):
+            add(p, FEED)
+        add([pts[-1][0], pts[-1][1], clearance_z], RAPID)
     if not pts:
         return MoveList(np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0, np.int64), clearance_z)
     kinds_a = np.array(kinds, dtype=np.int8)
