@@ -70,6 +70,11 @@ def test_a_pocket_with_corners_tighter_than_the_ball_is_finished_where_the_ball_
     _assert_finished(report)
     # The pocket's sharp inner corners and edges are out of the ball's reach, and said so.
     assert report["unfinished_mm2"]["unreachable_by_main_ball_mm2"] > 0
+    # Part of what the ball cannot touch there (the foot of the pocket's walls, beside the sharp edge) is
+    # left within the target all the same; the summary says how much of the whole part is.
+    finished = report["finished_share"]
+    assert finished > report["reachable_share"] + 0.01
+    assert report["summary"].endswith(f"; {100 * finished:.1f} % of the whole part is left within {H:g} mm")
 
 
 def test_a_rest_ball_finishes_the_corners_the_main_ball_cannot_reach():
