@@ -7,11 +7,11 @@ import pytest
 
 manifold3d = pytest.importorskip("manifold3d")
 
-from cam.gcode.moves import FEED, PLUNGE, RAPID  # noqa: E402
-from cam.gcode.setup import Setup  # noqa: E402
-from cam.params import ToolpathParams  # noqa: E402
-from cam.plan.link_part import link_setup  # noqa: E402
-from cam.plan.part import setup_part  # noqa: E402
+from cam.gcode.moves import FEED, PLUNGE, RAPID
+from cam.gcode.setup import Setup
+from cam.params import ToolpathParams
+from cam.plan.link_part import link_setup
+from cam.plan.part import setup_part
 
 R = 3.0
 
