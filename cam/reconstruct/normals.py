@@ -2,13 +2,13 @@
 
 Orientation follows Hoppe et al. (1992): a tree over the k-NN graph whose edge
 weights are small where neighbouring tangent planes agree, walked from a seed
-(the point farthest from its component's centroid, made to face away from it).
-Each step copies the parent's side. The walk is linear in the number of points
+(the point farthest from its component's centroid). Each step copies the
+parent's side. The walk is linear in the number of points
 whatever the shape, so a perfectly planar sample (where all weights tie) costs
 no more than a curved one. Which side is out is then settled for the whole
 component by the divergence theorem: over a closed surface the outward normals'
-flux of (p - centroid) is three times the enclosed volume, so positive; the
-seed's own normal alone is not reliable where the seed is a corner.
+flux of (p - centroid) is three times the enclosed volume, so positive (the
+seed's own normal is no guide where the seed is a corner).
 
 Copying the parent's side is only right between two samples of the same sheet
 of the surface. Across a thin wall or a narrow gap (the two faces of a 2 mm
@@ -275,9 +275,8 @@ def orient_normals(
     for comp in range(count):
         members = np.flatnonzero(labels == comp)
         centre = points[members].mean(axis=0)
+        # The walk starts at the point farthest from the centre; its side is settled below with the rest.
         seed = members[np.argmax(np.linalg.norm(points[members] - centre, axis=1))]
-        if np.dot(out[seed], points[seed] - centre) < 0:
-            out[seed] = -out[seed]
         order, pred = breadth_first_order(tree, seed, directed=False, return_predecessors=True)
         _propagate(out, order, pred)
         # The seed's own normal can mislead: the farthest point is often a corner, where the plane fit
