@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from cam.denoise._noisekernel import quadric_residuals, ring_neighbourhoods
+
 __all__ = ["NoiseEstimate", "estimate_noise", "normal_residuals"]
 
 #: Ring radii (in edges) of the fine and the coarse neighbourhood.
@@ -137,36 +139,7 @@ def normal_residuals(x: np.ndarray, faces: np.ndarray, rings: int, max_neighbour
     if max_neighbours < _MIN_NEIGHBOURS:
         raise ValueError(f"max_neighbours must be at least {_MIN_NEIGHBOURS}, got {max_neighbours}")
     idx, mask = _ring_neighbourhoods(x, faces, rings, max_neighbours)
-    out = np.full(len(x), np.nan)
-    enough = mask.sum(axis=1) >= _MIN_NEIGHBOURS
-    if not enough.any():
-        return out
-    idx, mask = idx[enough], mask[enough]
-    w = mask.astype(np.float64)
-    p = x[idx] - x[np.flatnonzero(enough)][:, None, :]  # (k, K, 3), the vertex itself at the origin
-    cnt = w.sum(axis=1)
-    centroid = np.einsum("kj,kji->ki", w, p) / cnt[:, None]
-    q = (p - centroid[:, None, :]) * w[..., None]
-    evals, evecs = np.linalg.eigh(np.einsum("kji,kjl->kil", q, q))
-    normal, t2, t1 = evecs[:, :, 0], evecs[:, :, 1], evecs[:, :, 2]
-    u = np.einsum("kji,ki->kj", p, t1)
-    v = np.einsum("kji,ki->kj", p, t2)
-    h = np.einsum("kji,ki->kj", p, normal)
-    # Scale u, v by the neighbourhood's spread so the normal matrix is well conditioned at any unit.
-    s = np.sqrt(np.maximum(evals[:, 2], 1e-300) / cnt)[:, None]
-    u, v = u / s, v / s
-    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1) * w[..., None]
-    ata = np.einsum("kja,kjb->kab", design, design)
-    atb = np.einsum("kja,kj->ka", design, h * w)
-    cond_ok = np.linalg.cond(ata) < 1e12
-    ata[~cond_ok] = np.eye(6)  # replaced, then reported as NaN: a fit through collinear points
-    coef = np.linalg.solve(ata, atb[..., None])[..., 0]
-    # The vertex itself is at u = v = 0: its prediction is the constant term, its design row e_0.
-    leverage = np.linalg.solve(ata, np.eye(6)[0][None, :, None].repeat(len(ata), axis=0))[:, 0, 0]
-    resid = -coef[:, 0] / np.sqrt(np.clip(1.0 - leverage, 1e-6, None))
-    resid[~cond_ok] = np.nan
-    out[np.flatnonzero(enough)] = resid
-    return out
+    return quadric_residuals(x, idx, mask.sum(axis=1), min_count=_MIN_NEIGHBOURS)
 
 
 def _robust_sigma(residuals: np.ndarray) -> tuple[float, int]:
@@ -183,25 +156,8 @@ def _ring_neighbourhoods(x: np.ndarray, faces: np.ndarray, rings: int,
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     adj = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
                         shape=(n, n))
-    reach = adj + sp.identity(n, format="csr")
-    step = reach.copy()
-    for _ in range(rings - 1):
-        reach = (reach @ step).tocsr()
-        reach.data[:] = 1.0  # only the pattern matters; keeps the counts from growing
-    reach = reach.tocoo()
-    row, col = reach.row, reach.col
-    d = np.einsum("ij,ij->i", x[row] - x[col], x[row] - x[col])
-    order = np.lexsort((d, row))
-    row, col = row[order], col[order]
-    start = np.searchsorted(row, np.arange(n))
-    rank = np.arange(len(row)) - start[row]
-    keep = rank < max_neighbours
-    width = min(max_neighbours, int(rank.max()) + 1) if len(rank) else 1
-    idx = np.zeros((n, width), dtype=np.int64)
-    mask = np.zeros((n, width), dtype=bool)
-    idx[row[keep], rank[keep]] = col[keep]
-    mask[row[keep], rank[keep]] = True
-    return idx, mask
+    idx, count = ring_neighbourhoods(x, adj.indptr, adj.indices, rings=rings, max_neighbours=max_neighbours)
+    return idx, np.arange(idx.shape[1])[None, :] < count[:, None]
 
 
 def _check(x, faces) -> tuple[np.ndarray, np.ndarray]:
