@@ -117,7 +117,11 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
         tri, normals = tri[keep], normals[keep]
         if not len(tri):
             raise ValueError("no triangle of the closed mesh faces the tool")
-    box_lo, box_hi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
+    # three-way minimum and maximum of the corners: numpy's reduction over the short middle axis of a
+    # strided view took a quarter of the build
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    box_lo = np.minimum(np.minimum(a[:, :2], b[:, :2]), c[:, :2])
+    box_hi = np.maximum(np.maximum(a[:, :2], b[:, :2]), c[:, :2])
     lo, hi = box_lo - radius_mm, box_hi + radius_mm
     origin = lo.min(axis=0)
     extent = float((hi.max(axis=0) - origin).max())
@@ -126,7 +130,7 @@ def drop_index(vertices: np.ndarray, faces: np.ndarray, *, radius_mm: float, clo
     i0, j0 = np.floor((lo - origin) / cell).astype(np.int64).T
     i1, j1 = np.floor((hi - origin) / cell).astype(np.int64).T
     starts, members = bucket_boxes(i0, j0, i1, j1, shape)
-    top = tri[:, :, 2].max(axis=1)
+    top = np.maximum(np.maximum(a[:, 2], b[:, 2]), c[:, 2])
     by_top = None
     if clears:
         high = np.argsort(-top, kind="stable")
