@@ -1,8 +1,9 @@
-"""Today's QuadriFlow remesh on a corpus of closed parts: does it give a layout, and does the layout follow the creases?
+"""The remesh on a corpus of closed parts: does it give a layout, and does the layout follow the creases?
 
 Issue 35 asks for a quad layout on every closed part with crease recall 1.0 and no quad straddling a crease.
 This bench measures where `cam.remesh.remesh_quads` (default `RemeshParams`) stands on a corpus of closed
-parts, so that a new remesh can be measured against it on the same parts:
+parts, both QuadriFlow's layout (the candidate kept) and that layout with its edges snapped onto the creases
+(`cam.remesh.snap`), from the same run:
 
 - Fandisk and Block (`../shared/data/*_gt.obj`) ×10, as the other benches take them (mm);
 - the seven ABC parts of `../shared/data/abc/`, each scaled to a 60 mm bounding-box diagonal (one of them,
@@ -283,6 +284,10 @@ def bench_part(name: str, mesh: Mesh) -> dict:
             "straddling_quads": report["straddling_quads"],
             "crease_recall_35": gentle.recall, "crease_length_35_mm": gentle.crease_length_mm,
             "straddling_quads_35": len(gentle.straddling),
+            "crease_recall_quadriflow": report["snap"]["crease_recall_before"],
+            "straddling_quads_quadriflow": report["snap"]["straddling_quads_before"],
+            "chains": report["snap"]["crease_chains"], "chains_snapped": report["snap"]["snapped_chains"],
+            "chains_partly": report["snap"]["partly_snapped_chains"],
             "irregular_vertices": report["check"]["extraordinary_vertices"],
             "hausdorff_ratio": report["hausdorff_ratio"], "missed_crease_mm": report["missed_crease_mm"],
             "failed_attempts": report["failed_attempts"]}
@@ -295,42 +300,49 @@ def _fmt(value, spec: str) -> str:
 def write_table(rows: list[dict], absent: list[str], out: Path, machine: str) -> None:
     """``remesh.md``: the table and the summary line (the Notes under it are written by hand after a run)."""
     lines = [
-        "# remesh: today's QuadriFlow layout on a corpus of closed parts (issue 35)",
+        "# remesh: QuadriFlow's layout, its edges snapped onto the creases, on a corpus of closed parts (issue 35)",
         "",
         "`python bench/remesh.py` — `cam.remesh.remesh_quads` with the default `RemeshParams` (3,000 quads, up to 3",
-        "attempts and 3 candidates, 300 s per QuadriFlow run) on each part as a clean triangle mesh. Recall: the",
-        "share of crease length (dihedral over 50°, `segment.sharp_angle_deg`; the second figure over 35°) that",
-        "quad edges within 30° of its direction follow within 0.2 % of the bounding-box diagonal. Straddling: quads",
-        "with no crease-bounded region holding all four corners (corners within the tolerance of a crease count on",
-        "both sides). Irregular: interior vertices of valence ≠ 4. Hausdorff: two-sided, over the diagonal.",
-        "Fandisk and Block ×10; ABC parts scaled to a 60 mm bounding-box diagonal. Set: `tune` = tuning set,",
-        "`held` = held out.",
+        "attempts and 3 candidates, 300 s per QuadriFlow run, `snap_creases` on) on each part as a clean triangle",
+        "mesh. Each row gives the layout QuadriFlow made (the candidate kept) and the same layout after",
+        "`cam.remesh.snap.snap_to_creases` (QF → snapped), from one run. Recall: the share of crease length",
+        "(dihedral over 50°, `segment.sharp_angle_deg`; the second figure over 35°, snapped layout) that quad",
+        "edges within 30° of its direction follow within 0.2 % of the bounding-box diagonal. Straddling: quads with",
+        "no crease-bounded region holding all four corners (corners within the tolerance of a crease count on both",
+        "sides). Chains: crease chains (creases cut at corners) snapped whole of all, and in part. Irregular: interior",
+        "vertices of valence ≠ 4. Hausdorff: two-sided, over the diagonal (snapped layout). Fandisk and Block ×10;",
+        "ABC parts scaled to a 60 mm bounding-box diagonal. Set: `tune` = tuning set, `held` = held out.",
         "",
         f"Machine: {machine}.",
         "",
-        ("| part | set | triangles | result | quads | recall >50° | recall >35° | straddling >50° (>35°) | "
-         "irregular | Hausdorff / diag | s |"),
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        ("| part | set | triangles | result | quads | recall >50° QF → snapped | recall >35° | straddling >50° QF → "
+         "snapped (>35°) | chains snapped (partly) | irregular | Hausdorff / diag | s |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         held = "held" if r["held_out"] else "tune"
         if r["ok"]:
             lines.append(
                 f"| {r['part']} | {held} | {r['triangles']} | ok (seed {r['seed']}, {r['attempts']} runs"
-                f"{', split' if r['split'] else ''}) | {r['quads']} | {_fmt(r['crease_recall'], '.3f')} "
-                f"of {r['crease_length_mm']:.0f} mm | {_fmt(r['crease_recall_35'], '.3f')} of "
-                f"{r['crease_length_35_mm']:.0f} mm | {r['straddling_quads']} ({r['straddling_quads_35']}) | "
+                f"{', split' if r['split'] else ''}) | {r['quads']} | {_fmt(r['crease_recall_quadriflow'], '.3f')} → "
+                f"{_fmt(r['crease_recall'], '.3f')} of {r['crease_length_mm']:.0f} mm | "
+                f"{_fmt(r['crease_recall_35'], '.3f')} of {r['crease_length_35_mm']:.0f} mm | "
+                f"{r['straddling_quads_quadriflow']} → {r['straddling_quads']} ({r['straddling_quads_35']}) | "
+                f"{r['chains_snapped']} of {r['chains']} ({r['chains_partly']}) | "
                 f"{r['irregular_vertices']} | {r['hausdorff_ratio']:.2%} | {r['seconds']:.0f} |")
         else:
             seconds = f"{r['seconds']:.0f}" if "seconds" in r else "—"
             result = ("refused: " if r.get("refused") else "failed: ") + r["reason"]
-            lines.append(f"| {r['part']} | {held} | {r['triangles']} | {result} | — | — | — | — | — | — | {seconds} |")
+            lines.append(f"| {r['part']} | {held} | {r['triangles']} | {result} | — | — | — | — | — | — | — | {seconds} |")
     ok = [r for r in rows if r["ok"]]
     closed = [r for r in rows if not r.get("refused")]
     recalls = [r["crease_recall"] for r in ok if r["crease_recall"] is not None]
+    before = [r["crease_recall_quadriflow"] for r in ok if r["crease_recall_quadriflow"] is not None]
     lines += ["", f"Layouts: {len(ok)} of {len(closed)} closed parts"
-              + (f"; crease recall (>50°) {min(recalls):.3f}–{max(recalls):.3f}, 1.0 on "
-                 f"{sum(r == 1.0 for r in recalls)}; no straddling quad on "
+              + (f"; crease recall (>50°) of QuadriFlow's layouts {min(before):.3f}–{max(before):.3f} (median "
+                 f"{np.median(before):.3f}, 1.0 on {sum(r == 1.0 for r in before)}), snapped {min(recalls):.3f}–"
+                 f"{max(recalls):.3f} (median {np.median(recalls):.3f}, 1.0 on {sum(r == 1.0 for r in recalls)}); "
+                 f"no straddling quad on {sum(r['straddling_quads_quadriflow'] == 0 for r in ok)} → "
                  f"{sum(r['straddling_quads'] == 0 for r in ok)}" if recalls else "") + "."]
     if absent:
         lines += ["", f"Not run (data absent): {', '.join(absent)}."]

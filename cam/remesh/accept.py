@@ -17,7 +17,7 @@ from cam.mesh.quads import face_areas, face_normals
 from cam.remesh.check import inspect_quad_mesh
 from cam.remesh.repair import repair_quad_mesh
 
-__all__ = ["accept_quads"]
+__all__ = ["accept_quads", "hausdorff_to_mesh"]
 
 
 def accept_quads(raw_vertices: np.ndarray, raw_faces: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, *,
@@ -74,7 +74,7 @@ def accept_quads(raw_vertices: np.ndarray, raw_faces: np.ndarray, vertices: np.n
     check = inspect_quad_mesh(verts, quads, expected_boundary_loops=boundary_loops)
     if check.problems:
         raise ValueError("; ".join(check.problems))
-    hausdorff, mean = _hausdorff(verts, quads, index)
+    hausdorff, mean = hausdorff_to_mesh(verts, quads, index)
     if hausdorff > max_hausdorff_ratio * diagonal_mm:
         raise ValueError(f"the quad mesh is {hausdorff:.3g} mm from the input at worst "
                          f"({hausdorff / diagonal_mm:.1%} of the part's diagonal, limit {max_hausdorff_ratio:.1%}); "
@@ -85,8 +85,9 @@ def accept_quads(raw_vertices: np.ndarray, raw_faces: np.ndarray, vertices: np.n
     }
 
 
-def _hausdorff(verts: np.ndarray, quads: np.ndarray, index: MeshIndex) -> tuple[float, float]:
-    """Two-sided Hausdorff and mean distance (mm) between a quad mesh and a triangle mesh, on dense samples."""
+def hausdorff_to_mesh(verts: np.ndarray, quads: np.ndarray, index: MeshIndex) -> tuple[float, float]:
+    """Two-sided Hausdorff and mean distance (mm) between a quad mesh (vertices (n, 3) mm, quads (m, 4)) and the
+    triangle mesh of `index`, on dense samples."""
     p = verts[quads]
     samples = np.vstack([verts, p.mean(axis=1), 0.5 * (p + np.roll(p, -1, axis=1)).reshape(-1, 3)])
     d_fwd = closest_points(index, samples)[1]

@@ -22,10 +22,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cam import CheckCancel, GeometryError, Progress
+from cam.mesh.closest import mesh_index
 from cam.params import RemeshParams, SegmentParams
-from cam.remesh.accept import accept_quads
+from cam.remesh.accept import accept_quads, hausdorff_to_mesh
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
 from cam.remesh.process import QuadriflowFailed, QuadriflowRuns
+from cam.remesh.snap import snap_to_creases
 
 __all__ = ["RemeshFailed", "RemeshResult", "boundary_loop_count", "remesh_quads"]
 
@@ -140,6 +142,10 @@ def remesh_quads(
         - ``min_cost_flow``: QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).
         - ``max_hausdorff_ratio``: largest accepted two-sided Hausdorff distance as a
           fraction of the input's bounding-box diagonal.
+        - ``snap_creases``: move the kept layout's vertices so that its edges run along the creases
+          (:func:`cam.remesh.snap.snap_to_creases`, after the choice); the report's ``snap`` says what was
+          snapped, what not and why, and the recall and straddling quads before. The distances in the
+          report are the snapped layout's.
     progress
         ``progress(fraction, message)`` before each run and before its checks.
     check_cancel
@@ -177,11 +183,29 @@ def remesh_quads(
         raise RemeshFailed(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): "
                            + "; ".join(failures) + ". Try another remesh.target_faces or remesh.seed")
     best = _keep_best(accepted, failures, runs)
+    if params.snap_creases:
+        best = _snap(best, mesh, crease_angle_deg)
     started = time.monotonic()
     conformity = measure_crease_conformity(best.vertices, best.faces, mesh.vertices, mesh.triangles,
                                            crease_angle_deg=crease_angle_deg)
     best.report.update(conformity.as_dict(), conformity_s=time.monotonic() - started)
     return best
+
+
+def _snap(best: RemeshResult, mesh: _Input, crease_angle_deg: float) -> RemeshResult:
+    """The kept layout with its edges on the creases (`cam.remesh.snap`); its report gains ``snap`` (what was
+    snapped and what not, the recall and straddling quads before) and the distances anew."""
+    started = time.monotonic()
+    before = measure_crease_conformity(best.vertices, best.faces, mesh.vertices, mesh.triangles,
+                                       crease_angle_deg=crease_angle_deg)
+    snapped = snap_to_creases(best.vertices, best.faces, mesh.vertices, mesh.triangles,
+                              crease_angle_deg=crease_angle_deg)
+    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, best.faces, mesh_index(mesh.vertices, mesh.triangles))
+    report = {**best.report, "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
+              "mean_distance_mm": mean, "snap_s": time.monotonic() - started,
+              "snap": {**snapped.report, "crease_recall_before": before.recall,
+                       "straddling_quads_before": len(before.straddling)}}
+    return RemeshResult(vertices=snapped.vertices, faces=best.faces, report=report)
 
 
 def _prepare_input(vertices: np.ndarray, faces: np.ndarray) -> _Input:

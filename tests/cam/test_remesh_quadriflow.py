@@ -57,7 +57,12 @@ def test_remesh_box_is_checked_closed_and_on_the_surface():
     # No run failed, so every run was at the target itself: the layouts compared are of one density.
     assert [c["quadriflow_target_faces"] for c in result.report["candidates"]] == [300, 300, 300]
     assert result.report["crease_length_mm"] == pytest.approx(360.0) and result.report["missed_crease_mm"] == 0.0
-    assert result.report["hausdorff_mm"] == min(c["hausdorff_mm"] for c in result.report["candidates"])
+    nearest = min(result.report["candidates"], key=lambda c: c["hausdorff_mm"])
+    assert result.report["seed"] == nearest["seed"]
+    # Its edges were then snapped onto the box's edges: every quad lies flat on a face, exactly on the box.
+    assert result.report["snap"]["snapped_chains"] == result.report["snap"]["crease_chains"] == 12
+    assert result.report["crease_recall"] == 1.0 and result.report["straddling_quads"] == 0
+    assert result.report["hausdorff_mm"] < 1e-9 < nearest["hausdorff_mm"]
     # The kept layout's crease recall and straddling quads, at 0.2 % of the diagonal, are in the report.
     from cam.remesh.creases import measure_crease_conformity
 
@@ -163,8 +168,10 @@ def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
     from cam.remesh.creases import measure_crease_following
 
     mesh = _box_with_a_corner_cut_off()
+    # The choice is made before the kept layout's edges are snapped: without snapping, the kept layout is the
+    # candidate as it was measured.
     result = remesh_quads(mesh.vertices, mesh.faces,
-                          RemeshParams(target_faces=400, seed=0, candidates=3, timeout_s=120))
+                          RemeshParams(target_faces=400, seed=0, candidates=3, timeout_s=120, snap_creases=False))
     report = result.report
     seen = report["candidates"]
     assert [c["seed"] for c in seen] == [0, 1, 2] and report["attempts"] == 3
@@ -174,7 +181,8 @@ def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
     assert report["missed_crease_mm"] == again.missed_length_mm == best["missed_crease_mm"]
     assert report["crease_length_mm"] == pytest.approx(again.crease_length_mm)
     # One candidate is the first run that passes.
-    first = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=400, seed=0, candidates=1, timeout_s=120))
+    first = remesh_quads(mesh.vertices, mesh.faces,
+                         RemeshParams(target_faces=400, seed=0, candidates=1, timeout_s=120, snap_creases=False))
     assert first.report["seed"] == 0 and first.report["attempts"] == 1 and len(first.report["candidates"]) == 1
     assert first.report["missed_crease_mm"] == seen[0]["missed_crease_mm"]
 

@@ -1,0 +1,548 @@
+"""Quad edges moved onto the creases of the triangle mesh the layout was made from.
+
+QuadriFlow's sharp-feature mode turns its field along the creases but leaves its vertices beside them:
+the quad edges run near a crease, a tenth of a quad off it, and near a crease's corners a quad folds
+over it. Segment puts patch borders on sharp quad edges and the fit cannot bend a bicubic patch round a
+crease inside it, so each such quad costs the fit its tolerance there.
+
+`snap_to_creases` makes every crease it can a chain of quad edges:
+
+1. The creases of the triangle mesh (dihedral over ``crease_angle_deg``, and gentle ones over
+   ``gentle_angle_deg`` that run on for at least two quads) are cut into chains at their corners: where
+   three or more meet, where one ends, and where one turns by more than ``corner_turn_deg`` within a
+   quad's length (a pocket's rim at the pocket's corners). A closed crease with no corner is cut in two.
+2. Every chain end gets its nearest free quad vertex. Longest chains first, Dijkstra's search over
+   directed quad edges finds the path between a chain's two end vertices that keeps nearest the chain
+   (edge length weighted by the squared distance in quarter quads), that does not turn inside a quad
+   (two sides of one quad in a row would put three of its corners on one line; allowed where the quad's
+   corner is nearly straight already, as QuadriFlow leaves some beside creases) and that uses no vertex
+   of another chain. A chain whose path is missing or half again longer than the chain is not snapped.
+3. The path's vertices move onto the chain, spaced along it as they were along the path; the vertices
+   within two rings of them are relaxed (neighbour averages, put back on the triangle mesh in the
+   crease-bounded region they were in).
+4. A quad that would fold (a corner turned against the quad's normal or the surface's) or collapse
+   undoes the chains that moved it, and the rest are snapped again, for up to three rounds.
+
+Chains that are not snapped are reported with where they run and why; a quad left across one is not
+hidden (`cam.remesh.creases.measure_crease_conformity` counts them).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from cam.mesh.closest import MeshIndex, closest_points, mesh_index
+
+__all__ = ["Snapped", "snap_to_creases"]
+
+# A path's vertices this far from their chain (in quad lengths) cost (1 + (d / _SPREAD)²) times the edge length.
+_SPREAD = 0.25
+# A path may run along two sides of one quad only where the quad's corner between them is this straight already.
+_STRAIGHT_DEG = 150.0
+# Quad vertices searched around a chain: within this many quad lengths of it.
+_CORRIDOR = 1.0
+# A path longer than this times its chain zigzags across it.
+_MAX_DETOUR = 1.5
+# A chain shorter than this many quad lengths is too short for a quad edge of its own.
+_MIN_CHAIN = 0.5
+# A chain with no path along it is cut in halves no shorter than this many quad lengths.
+_MIN_SPLIT = 1.5
+# Gentle creases count from this many quad lengths on.
+_MIN_GENTLE = 2.0
+# Rings of vertices round the moved ones that are relaxed, and the rounds of relaxation.
+_RELAX_RINGS = 2
+_RELAX_ROUNDS = 4
+# A quad collapses when its area falls under this share of what it was.
+_MIN_AREA = 0.2
+# Rounds of undoing the chains that fold quads.
+_ROUNDS = 3
+# Chains listed in the report at most (the counts cover all).
+_REPORTED = 20
+
+
+@dataclass(frozen=True, eq=False)
+class Snapped:
+    """A layout with its quad edges on the creases.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float64
+        The quad mesh's vertices, mm: those of snapped chains on the creases, their neighbours relaxed,
+        the rest as given.
+    report : dict
+        JSON-ready: crease chains found and snapped, their lengths (mm), vertices moved, the largest move
+        (mm), and the chains not snapped (where they run, how long, why).
+    """
+
+    vertices: np.ndarray
+    report: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class _Chain:
+    points: np.ndarray  # (k, 3) float64, the crease polyline end to end, mm
+    arc: np.ndarray  # (k,) float64, arc length from the first point, mm
+    ends: tuple  # keys of its two ends: a triangle-mesh vertex id, or the key of the piece a split point cut
+
+    @property
+    def length(self) -> float:
+        return float(self.arc[-1])
+
+
+class _Layout:
+    """The quad mesh as the search and the checks see it."""
+
+    def __init__(self, vertices: np.ndarray, quads: np.ndarray) -> None:
+        self.vertices, self.quads = vertices, quads
+        sides = np.stack([quads, np.roll(quads, -1, axis=1)], axis=2).reshape(-1, 2)
+        keys, counts = np.unique(np.sort(sides, axis=1), axis=0, return_counts=True)
+        keys, counts = keys[keys[:, 0] != keys[:, 1]], counts[keys[:, 0] != keys[:, 1]]
+        self.side = float(np.median(np.linalg.norm(vertices[keys[:, 0]] - vertices[keys[:, 1]], axis=1)))
+        self.neighbours: list[list[int]] = [[] for _ in range(len(vertices))]
+        for a, b in keys.tolist():
+            self.neighbours[a].append(b)
+            self.neighbours[b].append(a)
+        self.border = set(keys[counts == 1].ravel().tolist())  # an open layout's border stays where it is
+        # (u, v, w) where u-v and v-w are two sides of one quad, and the quad's angle at v (degrees): a path that
+        # runs u, v, w turns inside the quad, which puts three of its corners on one line
+        p = vertices[quads]
+        e0, e1 = np.roll(p, 1, axis=1) - p, np.roll(p, -1, axis=1) - p
+        cos = np.einsum("kcd,kcd->kc", e0, e1) / np.maximum(np.linalg.norm(e0, axis=2) * np.linalg.norm(e1, axis=2),
+                                                            1e-300)
+        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).tolist()
+        self.turns: dict[tuple[int, int, int], float] = {}
+        for f, a in zip(quads.tolist(), angle, strict=True):
+            for i in range(4):
+                u, v, w = f[i - 1], f[i], f[(i + 1) % 4]
+                self.turns[(u, v, w)] = self.turns[(w, v, u)] = a[i]
+        self.tree = cKDTree(vertices)
+
+
+def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, *,
+                    crease_angle_deg: float = 50.0, gentle_angle_deg: float = 35.0,
+                    corner_turn_deg: float = 40.0) -> Snapped:
+    """Move a quad layout's vertices so that its edges run along the triangle mesh's creases.
+
+    Parameters
+    ----------
+    quad_vertices : (n, 3) array_like of float
+        The layout's vertices, mm, on the triangle mesh.
+    quads : (m, 4) array_like of int
+        Its quads.
+    vertices : (p, 3) array_like of float
+        The triangle mesh the layout was made from, mm.
+    triangles : (q, 3) array_like of int
+        Its triangles.
+    crease_angle_deg : float
+        A triangle edge whose faces' normals differ by more than this is a crease, degrees in (0, 180).
+    gentle_angle_deg : float
+        Edges over this angle are a crease too where they form a chain at least two quads long, degrees
+        in (0, ``crease_angle_deg``].
+    corner_turn_deg : float
+        A crease that turns by more than this within a quad's length has a corner there, degrees in (0, 180).
+
+    Returns
+    -------
+    Snapped
+
+    Raises
+    ------
+    ValueError
+        For arrays of the wrong shape, indices out of range or angles out of range, naming what was seen.
+    """
+    qv, qf, tv, tf = _check(quad_vertices, quads, vertices, triangles)
+    if not (0 < gentle_angle_deg <= crease_angle_deg < 180 and 0 < corner_turn_deg < 180):
+        raise ValueError(f"need 0 < gentle_angle_deg <= crease_angle_deg < 180 and 0 < corner_turn_deg < 180, got "
+                         f"{gentle_angle_deg}, {crease_angle_deg} and {corner_turn_deg}")
+    layout = _Layout(qv, qf)
+    chains, region = _crease_chains(tv, tf, crease_angle_deg, gentle_angle_deg, corner_turn_deg, layout.side)
+    index = mesh_index(tv, tf)
+    home = region[closest_points(index, qv)[2]]
+    failed: dict[tuple, str] = {}
+    for _ in range(_ROUNDS + 1):
+        new, moved_by, pieces = _snap(layout, chains, failed, index, region, home)
+        folded = _folded(new, layout, index)
+        if not len(folded):
+            return Snapped(vertices=new, report=_report(chains, pieces, failed, qv, new))
+        for key in {key for k in folded.tolist() for v in qf[k].tolist() for key in moved_by.get(v, ())}:
+            failed[key] = "snapping it folds a quad"
+    whole = {(c,): chain for c, chain in enumerate(chains)}
+    return Snapped(vertices=qv.copy(), report=_report(chains, whole, dict.fromkeys(whole, "snapping folds quads"),
+                                                      qv, qv))
+
+
+def _check(quad_vertices, quads, vertices, triangles) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    qv = np.asarray(quad_vertices, dtype=np.float64)
+    qf = np.asarray(quads)
+    tv = np.asarray(vertices, dtype=np.float64)
+    tf = np.asarray(triangles)
+    if qv.ndim != 2 or qv.shape[1] != 3 or qf.ndim != 2 or qf.shape[1] != 4 or not len(qf) or qf.dtype.kind not in "iu":
+        raise ValueError(f"need quad vertices (n, 3) and integer quads (m >= 1, 4), got {qv.shape} and {qf.shape}")
+    if tv.ndim != 2 or tv.shape[1] != 3 or tf.ndim != 2 or tf.shape[1] != 3 or not len(tf) or tf.dtype.kind not in "iu":
+        raise ValueError(f"need vertices (p, 3) and integer triangles (q >= 1, 3), got {tv.shape} and {tf.shape}")
+    qf, tf = qf.astype(np.int64), tf.astype(np.int64)
+    if qf.min() < 0 or qf.max() >= len(qv) or tf.min() < 0 or tf.max() >= len(tv):
+        raise ValueError(f"quads index vertices {qf.min()}..{qf.max()} of {len(qv)} and triangles {tf.min()}.."
+                         f"{tf.max()} of {len(tv)}")
+    if not (np.isfinite(qv).all() and np.isfinite(tv).all()):
+        raise ValueError("vertices must be finite")
+    return qv, qf, tv, tf
+
+
+# --- crease chains ------------------------------------------------------------------------------------------
+
+def _crease_chains(tv: np.ndarray, tf: np.ndarray, angle_deg: float, gentle_deg: float, turn_deg: float,
+                   side: float) -> tuple[list[_Chain], np.ndarray]:
+    """The creases cut into chains at their corners, and each triangle's crease-bounded region (int64 (q,))."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(tv, tf, process=False)
+    angles = np.asarray(mesh.face_adjacency_angles)
+    pairs = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
+    creased = angles > np.radians(gentle_deg)
+    edges = np.sort(np.asarray(mesh.face_adjacency_edges, dtype=np.int64).reshape(-1, 2)[creased], axis=1)
+    sharp = {(a, b) for (a, b), s in zip(edges.tolist(), (angles[creased] > np.radians(angle_deg)).tolist(), strict=True)
+             if s}
+    smooth = pairs[~creased]
+    joined = coo_matrix((np.ones(len(smooth)), (smooth[:, 0], smooth[:, 1])), shape=(len(tf), len(tf)))
+    region = connected_components(joined, directed=False)[1].astype(np.int64)
+    chains = []
+    for walk in _walks(np.unique(edges, axis=0)):
+        for piece in _cut_at_turns(walk, tv, turn_deg, side):
+            chain = _make_chain(piece, tv)
+            if chain.length >= _MIN_GENTLE * side or any((min(a, b), max(a, b)) in sharp
+                                                         for a, b in itertools.pairwise(piece)):
+                chains.append(chain)
+    chains.sort(key=lambda c: -c.length)
+    return chains, region
+
+
+def _make_chain(ids: list[int], tv: np.ndarray) -> _Chain:
+    return _polyline(tv[ids], (ids[0], ids[-1]))
+
+
+def _polyline(points: np.ndarray, ends: tuple) -> _Chain:
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    return _Chain(points=points, arc=arc, ends=ends)
+
+
+def _walks(edges: np.ndarray) -> list[list[int]]:
+    """The crease graph's edges as walks between vertices of degree other than two; closed loops start and end
+    at one vertex."""
+    adjacent: dict[int, list[int]] = {}
+    for a, b in edges.tolist():
+        adjacent.setdefault(a, []).append(b)
+        adjacent.setdefault(b, []).append(a)
+    used: set[tuple[int, int]] = set()
+    walks = []
+
+    def walk_from(a: int, b: int) -> list[int]:
+        path = [a, b]
+        used.add((min(a, b), max(a, b)))
+        while len(adjacent[path[-1]]) == 2 and path[-1] != path[0]:
+            nxt = next((n for n in adjacent[path[-1]] if (min(n, path[-1]), max(n, path[-1])) not in used), None)
+            if nxt is None:
+                break
+            used.add((min(nxt, path[-1]), max(nxt, path[-1])))
+            path.append(nxt)
+        return path
+
+    for v in sorted(adjacent):
+        if len(adjacent[v]) != 2:
+            for n in adjacent[v]:
+                if (min(v, n), max(v, n)) not in used:
+                    walks.append(walk_from(v, n))
+    for v in sorted(adjacent):  # what is left are loops of degree-two vertices
+        for n in adjacent[v]:
+            if (min(v, n), max(v, n)) not in used:
+                walks.append(walk_from(v, n))
+    return walks
+
+
+def _cut_at_turns(walk: list[int], tv: np.ndarray, turn_deg: float, side: float) -> list[list[int]]:
+    """The walk cut where it turns by more than ``turn_deg`` over half a quad on either side (the sharpest point
+    of each turn); a closed walk without a turn is cut in two halves."""
+    closed = walk[0] == walk[-1] and len(walk) > 2
+    chain = _make_chain(walk, tv)
+    turn = _turning(chain, 0.5 * side, closed)
+    window = 0.5 * side
+    cuts = []
+    for i in np.flatnonzero(turn > np.radians(turn_deg)).tolist():
+        near = np.abs(chain.arc - chain.arc[i]) <= window
+        if closed:
+            near |= chain.length - np.abs(chain.arc - chain.arc[i]) <= window
+        if turn[i] >= turn[near].max() and not any(abs(chain.arc[j] - chain.arc[i]) <= window for j in cuts):
+            cuts.append(i)
+    if closed:
+        if not cuts:
+            cuts = [0, int(np.searchsorted(chain.arc, 0.5 * chain.length))]
+        cuts = sorted({c % (len(walk) - 1) for c in cuts})
+        ring = walk[:-1]
+        pieces = []
+        for a, b in zip(cuts, cuts[1:] + [cuts[0] + len(ring)], strict=True):
+            pieces.append([ring[k % len(ring)] for k in range(a, b + 1)])
+        return [p for p in pieces if len(p) >= 2]
+    bounds = [0, *sorted(c for c in cuts if 0 < c < len(walk) - 1), len(walk) - 1]
+    return [walk[a:b + 1] for a, b in itertools.pairwise(bounds)]
+
+
+def _turning(chain: _Chain, reach: float, closed: bool) -> np.ndarray:
+    """Angle (rad) between the chain's directions over ``reach`` mm before and after each point; 0 at open ends."""
+    s = chain.arc
+    if closed:
+        length = chain.length
+        before = _at(chain, (s - reach) % length)
+        after = _at(chain, (s + reach) % length)
+    else:
+        before = _at(chain, np.maximum(s - reach, 0.0))
+        after = _at(chain, np.minimum(s + reach, chain.length))
+    d0, d1 = chain.points - before, after - chain.points
+    n0, n1 = np.linalg.norm(d0, axis=1), np.linalg.norm(d1, axis=1)
+    ok = (n0 > 1e-12) & (n1 > 1e-12)
+    cos = np.einsum("ij,ij->i", d0, d1) / np.where(ok, n0 * n1, 1.0)
+    return np.where(ok, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
+
+
+def _at(chain: _Chain, s: np.ndarray) -> np.ndarray:
+    """Points of the chain at arc lengths ``s`` (mm), (k, 3)."""
+    return np.stack([np.interp(s, chain.arc, chain.points[:, k]) for k in range(3)], axis=1)
+
+
+# --- snapping -----------------------------------------------------------------------------------------------
+
+def _snap(layout: _Layout, chains: list[_Chain], failed: dict[tuple, str], index: MeshIndex, region: np.ndarray,
+          home: np.ndarray) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, _Chain]]:
+    """Snap the chains, longest first, but the pieces in ``failed`` (key -> why; keys: (chain,), and a split
+    piece's its parent's with 0 or 1 added), and add why others fail. A chain with no path along it is cut in
+    two at its middle, where a quad vertex of its own goes (down to `_MIN_SPLIT` quads), and its halves are
+    tried after the chains. Returns the new vertices, the pieces that moved each vertex, and every piece tried."""
+    new = layout.vertices.copy()
+    corners = {e: chains[c].points[k] for c in range(len(chains)) if (c,) not in failed
+               for e, k in zip(chains[c].ends, (0, -1), strict=True)}
+    ends = _end_vertices(layout, corners, taken=set())
+    owner: dict[int, tuple] = {}  # vertex -> the piece whose path runs through it (ends excluded)
+    moved_by: dict[int, set[tuple]] = {}
+    queue = [((c,), chain) for c, chain in enumerate(chains)]
+    pieces: dict[tuple, _Chain] = {}
+    for key, piece in queue:  # grows while it is walked: the halves of cut pieces
+        pieces[key] = piece
+        if key in failed:
+            continue
+        va, vb = ends.get(piece.ends[0]), ends.get(piece.ends[1])
+        if piece.length < _MIN_CHAIN * layout.side:
+            failed[key] = "shorter than half a quad"
+            continue
+        if va is None or vb is None or va == vb:
+            failed[key] = "no quad vertex of its own near an end"
+            continue
+        path = _path(layout, piece, va, vb, blocked=(set(owner) | set(ends.values())) - {va, vb})
+        if path is None:
+            halves = _halves(layout, key, piece, ends, owner)
+            if halves:
+                queue += halves
+            else:
+                failed[key] = "no quad-edge path runs along it"
+            continue
+        for v in path:
+            moved_by.setdefault(v, set()).add(key)
+        owner.update({v: key for v in path[1:-1]})
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(layout.vertices[path], axis=0), axis=1))])
+        new[path] = _at(piece, _placement(layout.vertices[path], piece, along, layout.side))
+    _relax(new, layout, moved_by, set(owner) | set(ends.values()), index, region, home)
+    return new, moved_by, pieces
+
+
+def _halves(layout: _Layout, key: tuple, piece: _Chain, ends: dict, owner: dict[int, tuple]
+            ) -> list[tuple[tuple, _Chain]]:
+    """The two halves of a piece cut at its middle, where a free quad vertex near it becomes their shared end
+    (added to ``ends``); none when the piece is shorter than 2 `_MIN_SPLIT` quads or no vertex is free there."""
+    if piece.length < 2 * _MIN_SPLIT * layout.side:
+        return []
+    middle = _at(piece, np.array([0.5 * piece.length]))
+    got = _end_vertices(layout, {key: middle[0]}, taken=set(ends.values()) | set(owner))
+    if key not in got:
+        return []
+    ends[key] = got[key]
+    k = int(np.searchsorted(piece.arc, 0.5 * piece.length, side="right"))
+    first, second = np.vstack([piece.points[:k], middle]), np.vstack([middle, piece.points[k:]])
+    return [(key + (0,), _polyline(first, (piece.ends[0], key))), (key + (1,), _polyline(second, (key, piece.ends[1])))]
+
+
+def _end_vertices(layout: _Layout, points: dict, *, taken: set[int]) -> dict:
+    """A quad vertex of its own, within a quad of it, for each end point (key -> (3,) mm), nearest pairs first and
+    none of ``taken``: key -> quad vertex; an end with none left out."""
+    if not points:
+        return {}
+    keys = list(points)
+    k = min(8, len(layout.vertices))
+    dist, idx = layout.tree.query(np.array([points[e] for e in keys]), k=k)
+    dist, idx = dist.reshape(len(keys), k), idx.reshape(len(keys), k)
+    pairs = sorted((d, i, int(idx[i, j])) for i in range(len(keys)) for j, d in enumerate(dist[i].tolist())
+                   if d <= layout.side)
+    ends: dict = {}
+    used = set(taken)
+    for _, i, v in pairs:
+        if keys[i] not in ends and v not in used:
+            ends[keys[i]] = v
+            used.add(v)
+    return ends
+
+
+def _path(layout: _Layout, chain: _Chain, va: int, vb: int, *, blocked: set[int]) -> list[int] | None:
+    """The cheapest quad-edge path va -> vb along the chain (see the module docstring), or None."""
+    side = layout.side
+    samples = _at(chain, np.linspace(0.0, chain.length, max(2, int(np.ceil(4 * chain.length / side)) + 1)))
+    near = sorted(set(itertools.chain.from_iterable(layout.tree.query_ball_point(samples, _CORRIDOR * side))))
+    near = [v for v in near if v not in blocked] + [va, vb]
+    dist = dict(zip(near, _distance_to_polyline(layout.vertices[near], chain.points).tolist(), strict=True))
+    weight = {v: 1.0 + (d / (_SPREAD * side)) ** 2 for v, d in dist.items()}
+    V = layout.vertices
+    start = (-1, va)
+    best = {start: 0.0}
+    parent: dict[tuple[int, int], tuple[int, int]] = {}
+    heap = [(0.0, -1, va)]
+    while heap:
+        cost, u_prev, u = heapq.heappop(heap)
+        state = (u_prev, u)
+        if cost > best.get(state, np.inf):
+            continue
+        if u == vb:
+            path = [u]
+            while state in parent:
+                state = parent[state]
+                path.append(state[1])
+            return path[::-1]
+        for w in layout.neighbours[u]:
+            if w not in weight or w == u_prev:
+                continue
+            step = float(np.linalg.norm(V[w] - V[u])) * 0.5 * (weight[u] + weight[w])
+            if layout.turns.get((u_prev, u, w), 180.0) < _STRAIGHT_DEG:
+                continue
+            nxt = (u, w)
+            if cost + step < best.get(nxt, np.inf):
+                best[nxt] = cost + step
+                parent[nxt] = state
+                heapq.heappush(heap, (cost + step, u, w))
+    return None
+
+
+def _placement(points: np.ndarray, chain: _Chain, along: np.ndarray, side: float) -> np.ndarray:
+    """Arc lengths (mm) on the chain for a path's vertices (k, 3): each vertex's closest point where those run on
+    in order, at least a tenth of a quad apart; otherwise spaced as the vertices are along the path (``along``)."""
+    s = _closest_arc(points, chain)
+    s[0], s[-1] = 0.0, chain.length
+    if np.all(np.diff(s) > 0.1 * side):
+        return s
+    return along / along[-1] * chain.length
+
+
+def _closest_arc(points: np.ndarray, chain: _Chain) -> np.ndarray:
+    """Arc length (mm) of the closest chain point to each point (n, 3)."""
+    a, b = chain.points[:-1], chain.points[1:]
+    ab = b - a
+    ab2 = np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-300)
+    t = np.clip(np.einsum("nkd,kd->nk", points[:, None, :] - a[None], ab) / ab2, 0.0, 1.0)
+    d = np.linalg.norm(a[None] + t[..., None] * ab[None] - points[:, None, :], axis=2)
+    k = np.argmin(d, axis=1)
+    rows = np.arange(len(points))
+    return chain.arc[k] + t[rows, k] * np.sqrt(ab2[k])
+
+
+def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each point (n, 3) to the polyline (k, 3)."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    t = np.einsum("nkd,kd->nk", points[:, None, :] - a[None], ab) / np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-300)
+    q = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.linalg.norm(q - points[:, None, :], axis=2).min(axis=1)
+
+
+def _relax(new: np.ndarray, layout: _Layout, moved_by: dict[int, set[tuple]], fixed: set[int], index: MeshIndex,
+           region: np.ndarray, home: np.ndarray) -> None:
+    """Carry the snapped vertices' moves into the `_RELAX_RINGS` rings round them, in place: each free vertex
+    there moves by half the mean move of its neighbours (from `_RELAX_ROUNDS` rounds of that), back onto the
+    triangle mesh in its own crease-bounded region, and takes the chains that moved its ring as its movers.
+    Vertices nothing moved near stay exactly where they are."""
+    ring = {v: set(cs) for v, cs in moved_by.items()}
+    frontier = set(moved_by)
+    for _ in range(_RELAX_RINGS):
+        grown = set()
+        for v in frontier:
+            for w in layout.neighbours[v]:
+                if w in fixed or w in layout.border or w in moved_by:
+                    continue
+                if w not in ring:
+                    grown.add(w)
+                ring.setdefault(w, set()).update(ring[v])
+        frontier = grown
+    free = np.array(sorted(v for v in ring if v not in moved_by), dtype=np.int64)
+    if not len(free):
+        return
+    for v in free.tolist():
+        moved_by[v] = ring[v]
+    shift = new - layout.vertices
+    nbrs = [layout.neighbours[v] for v in free.tolist()]
+    for _ in range(_RELAX_ROUNDS):
+        shift[free] = 0.5 * np.array([shift[n].mean(axis=0) for n in nbrs])
+    on, _, tri, _ = closest_points(index, layout.vertices[free] + shift[free])
+    keep = region[tri] == home[free]
+    new[free[keep]] = on[keep]
+
+
+def _folded(new: np.ndarray, layout: _Layout, index: MeshIndex) -> np.ndarray:
+    """Quads with a moved corner that snapping folds or collapses: int64 (k,) quad ids.
+
+    A quad folds when a corner turns inside out (against the quad's normal) or the quad turns against the
+    surface's normal, and it did not before (QuadriFlow leaves a few quads folded over crease corners; those are
+    not snapping's doing); it collapses when its area falls under `_MIN_AREA` of what it was.
+    """
+    moved = np.flatnonzero(np.any(new != layout.vertices, axis=1))
+    if not len(moved):
+        return np.zeros(0, dtype=np.int64)
+    touched = np.flatnonzero(np.isin(layout.quads, moved).any(axis=1))
+    fold_new, area_new = _quad_shape(new[layout.quads[touched]], index)
+    fold_old, area_old = _quad_shape(layout.vertices[layout.quads[touched]], index)
+    return touched[(fold_new & ~fold_old) | ~(area_new >= _MIN_AREA * area_old)]
+
+
+def _quad_shape(p: np.ndarray, index: MeshIndex) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each quad (corners (k, 4, 3), mm) folds (bool (k,)), and its area (mm², float (k,))."""
+    normal = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
+    length = np.linalg.norm(normal, axis=1)
+    corner = np.cross(np.roll(p, -1, axis=1) - p, np.roll(p, 1, axis=1) - p)  # (k, 4, 3), 2 x corner triangle
+    # a straight corner (zero corner triangle) is not inside out; a reflex one is
+    inside_out = (np.einsum("kcd,kd->kc", corner, normal)
+                  < -1e-6 * np.linalg.norm(corner, axis=2) * length[:, None]).any(axis=1)
+    _, _, tri, _ = closest_points(index, p.mean(axis=1))
+    t = index.vertices[index.faces[tri]]
+    against = np.einsum("kd,kd->k", normal, np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])) <= 0
+    return inside_out | against | ~(length > 0), 0.5 * length
+
+
+def _report(chains: list[_Chain], pieces: dict[tuple, _Chain], failed: dict[tuple, str], old: np.ndarray,
+            new: np.ndarray) -> dict:
+    move = np.linalg.norm(new - old, axis=1)
+    cut = {key[:-1] for key in pieces if len(key) > 1}
+    snapped = [key for key in pieces if key not in failed and key not in cut]
+    missed = sorted((key for key in failed if key in pieces), key=lambda key: -pieces[key].length)
+    done = {key[0] for key in snapped}
+    whole = [c for c in range(len(chains)) if not any(key[0] == c for key in missed)]
+    return {
+        "crease_chains": len(chains),
+        "snapped_chains": len(whole),
+        "partly_snapped_chains": len(done - set(whole)),
+        "crease_chain_length_mm": float(sum(c.length for c in chains)),
+        "snapped_length_mm": float(sum(pieces[key].length for key in snapped)),
+        "moved_vertices": int((move > 0).sum()),
+        "largest_move_mm": float(move.max(initial=0.0)),
+        "not_snapped": [{"from_mm": pieces[key].points[0].round(3).tolist(),
+                         "to_mm": pieces[key].points[-1].round(3).tolist(),
+                         "length_mm": round(pieces[key].length, 3), "why": failed[key]} for key in missed[:_REPORTED]],
+    }

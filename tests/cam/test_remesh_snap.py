@@ -1,0 +1,114 @@
+"""Tests for cam.remesh.snap: quad edges moved onto the creases of the triangle mesh."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from cam.params import RemeshParams
+from cam.remesh import remesh_quads
+from cam.remesh.check import inspect_quad_mesh
+from cam.remesh.creases import measure_crease_conformity
+from cam.remesh.snap import snap_to_creases
+from tests.quadshapes import quad_box, quad_grid
+
+SIZE = np.array([40.0, 30.0, 20.0])
+
+
+def _box_triangles() -> trimesh.Trimesh:
+    box = trimesh.creation.box(SIZE)
+    box.apply_translation(SIZE / 2)
+    return box.subdivide().subdivide()
+
+
+def _pushed_off_the_edges(qv: np.ndarray, push_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The box layout with every vertex on a box edge (not a corner) moved ``push_mm`` into one of its two faces
+    (alternately), still on the box; and which vertices those are."""
+    bound = np.isclose(qv, 0.0) | np.isclose(qv, SIZE)
+    edge = np.flatnonzero(bound.sum(axis=1) == 2)
+    moved = qv.copy()
+    for k, v in enumerate(edge.tolist()):
+        axis = np.flatnonzero(bound[v])[k % 2]  # leave this face's plane: slide into the other face
+        moved[v, axis] += push_mm if np.isclose(qv[v, axis], 0.0) else -push_mm
+    return moved, edge
+
+
+def test_quad_edges_pushed_off_a_box_s_edges_are_put_back_on_them():
+    qv, qf = quad_box((8, 6, 4), size=tuple(SIZE))
+    tri = _box_triangles()
+    pushed, edge = _pushed_off_the_edges(qv, 0.4)  # a tenth of a 5 mm quad; 0.2 % of the diagonal is 0.11 mm
+    before = measure_crease_conformity(pushed, qf, tri.vertices, tri.faces)
+    assert before.recall < 0.5 and len(before.straddling) > 0
+    snapped = snap_to_creases(pushed, qf, tri.vertices, tri.faces)
+    after = measure_crease_conformity(snapped.vertices, qf, tri.vertices, tri.faces)
+    assert after.recall == 1.0 and len(after.straddling) == 0
+    # each pushed vertex is back on a box edge, exactly where the layout had it (spaced as it was along the edge)
+    np.testing.assert_allclose(snapped.vertices[edge], qv[edge], atol=1e-9)
+    report = snapped.report
+    assert report["crease_chains"] == report["snapped_chains"] == 12 and report["not_snapped"] == []
+    assert report["snapped_length_mm"] == pytest.approx(4 * SIZE.sum())
+    assert report["largest_move_mm"] == pytest.approx(0.4)
+    # every vertex stays on the box, and no quad folds
+    d = np.minimum(np.abs(snapped.vertices), np.abs(snapped.vertices - SIZE)).min(axis=1)
+    assert d.max() < 1e-9
+    assert inspect_quad_mesh(snapped.vertices, qf).problems == ()
+
+
+def test_a_layout_laid_across_a_crease_is_left_as_it_is_and_the_crease_reported():
+    # A roof: two planes meeting at 90° along the x axis, under a quad grid turned 45° to the ridge. No quad
+    # edge path runs along the ridge without turning inside a quad, so nothing moves and the ridge is reported.
+    gv, gf = quad_grid(12, 12, size=(12.0, 12.0))
+    gv -= [6.0, 6.0, 0.0]
+    turn = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, np.sqrt(2.0)]]) / np.sqrt(2.0)
+    qv = gv @ turn.T
+    qv[:, 2] = -np.abs(qv[:, 1])
+    tv, quads = quad_grid(36, 36, size=(18.0, 18.0))  # a grid line on y = 0: the ridge is a chain of edges
+    tv -= [9.0, 9.0, 0.0]
+    tv[:, 2] = -np.abs(tv[:, 1])
+    tf = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    snapped = snap_to_creases(qv, gf, tv, tf)
+    np.testing.assert_array_equal(snapped.vertices, qv)
+    report = snapped.report
+    assert report["snapped_chains"] == 0 and report["snapped_length_mm"] == 0.0 and report["moved_vertices"] == 0
+    assert report["not_snapped"] and all(c["why"] == "no quad-edge path runs along it" for c in report["not_snapped"])
+
+
+def _box_pocket_fillet() -> tuple[np.ndarray, np.ndarray]:
+    """A 50 × 40 × 20 box with a 30 × 20 × 8 pocket whose vertical corners are rounded 4 mm."""
+    manifold3d = pytest.importorskip("manifold3d")
+    pocket = manifold3d.Manifold.cube([30.0, 20.0, 10.0]).translate([10.0, 10.0, 12.0])
+    rounded = manifold3d.Manifold.hull(manifold3d.Manifold.batch_hull([
+        manifold3d.Manifold.cylinder(10.0, 4.0, circular_segments=48).translate([x, y, 12.0])
+        for x in (14.0, 36.0) for y in (14.0, 26.0)]))
+    solid = manifold3d.Manifold.cube([50.0, 40.0, 20.0]) - (pocket ^ rounded)
+    mesh = solid.to_mesh()
+    return np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
+def test_remesh_snaps_its_layout_onto_a_pocketed_part_s_creases():
+    tv, tf = _box_pocket_fillet()
+    result = remesh_quads(tv, tf, RemeshParams(target_faces=1200, seed=0, timeout_s=120))
+    report, snap = result.report, result.report["snap"]
+    # measured again on the returned layout: the report's recall and straddling quads are the snapped layout's
+    conformity = measure_crease_conformity(result.vertices, result.faces, tv, tf)
+    assert report["crease_recall"] == conformity.recall and report["straddling_quads"] == len(conformity.straddling)
+    assert conformity.recall > snap["crease_recall_before"]
+    assert len(conformity.straddling) < snap["straddling_quads_before"]
+    # what was not snapped is reported, piece by piece, with a reason
+    unsnapped = snap["crease_chain_length_mm"] - snap["snapped_length_mm"]
+    assert unsnapped == pytest.approx(sum(c["length_mm"] for c in snap["not_snapped"]), abs=1e-2)
+    assert all(c["why"] for c in snap["not_snapped"])
+    assert inspect_quad_mesh(result.vertices, result.faces).problems == ()
+    assert report["hausdorff_ratio"] < RemeshParams().max_hausdorff_ratio
+
+
+def test_bad_input_names_what_it_saw():
+    qv, qf = quad_box((2, 2, 2))
+    tri = _box_triangles()
+    with pytest.raises(ValueError, match=r"quad vertices \(n, 3\) and integer quads"):
+        snap_to_creases(qv[:, :2], qf, tri.vertices, tri.faces)
+    with pytest.raises(ValueError, match="quads index vertices"):
+        snap_to_creases(qv, qf + 100, tri.vertices, tri.faces)
+    with pytest.raises(ValueError, match="gentle_angle_deg"):
+        snap_to_creases(qv, qf, tri.vertices, tri.faces, crease_angle_deg=30.0, gentle_angle_deg=40.0)
