@@ -18,8 +18,8 @@ crease inside it, so each such quad costs the fit its tolerance there.
    corner is nearly straight already, as QuadriFlow leaves some beside creases) and that uses no vertex
    of another chain. A chain whose path is missing or half again longer than the chain is not snapped.
 3. The path's vertices move onto the chain, spaced along it as they were along the path; the vertices
-   within two rings of them are relaxed (neighbour averages, put back on the triangle mesh in the
-   crease-bounded region they were in).
+   within two rings of them follow by half their neighbours' moves, back on the triangle mesh in the
+   crease-bounded region they were in (but those that lie on a crease already, snapped or not).
 4. A quad that would fold (a corner turned against the quad's normal or the surface's) or collapse
    undoes the chains that moved it, and the rest are snapped again, for up to three rounds.
 
@@ -56,6 +56,8 @@ _MIN_CHAIN = 0.5
 _MIN_SPLIT = 1.5
 # Gentle creases count from this many quad lengths on.
 _MIN_GENTLE = 2.0
+# A quad vertex this near a crease (in quad lengths) follows it already: relaxing does not move it.
+_ON_CREASE = 0.05
 # Rings of vertices round the moved ones that are relaxed, and the rounds of relaxation.
 _RELAX_RINGS = 2
 _RELAX_ROUNDS = 4
@@ -123,6 +125,7 @@ class _Layout:
                 u, v, w = f[i - 1], f[i], f[(i + 1) % 4]
                 self.turns[(u, v, w)] = self.turns[(w, v, u)] = a[i]
         self.tree = cKDTree(vertices)
+        self.on_crease: set[int] = set()  # vertices that follow a crease already: relaxing leaves them
 
 
 def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, *,
@@ -163,6 +166,7 @@ def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.n
                          f"{gentle_angle_deg}, {crease_angle_deg} and {corner_turn_deg}")
     layout = _Layout(qv, qf)
     chains, region = _crease_chains(tv, tf, crease_angle_deg, gentle_angle_deg, corner_turn_deg, layout.side)
+    layout.on_crease = _on_creases(layout, chains)
     index = mesh_index(tv, tf)
     home = region[closest_points(index, qv)[2]]
     failed: dict[tuple, str] = {}
@@ -310,6 +314,17 @@ def _turning(chain: _Chain, reach: float, closed: bool) -> np.ndarray:
     return np.where(ok, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
 
 
+def _on_creases(layout: _Layout, chains: list[_Chain]) -> set[int]:
+    """The quad vertices within `_ON_CREASE` quad lengths of a chain: they follow a crease already."""
+    if not chains:
+        return set()
+    step = 0.125 * layout.side
+    points = np.vstack([_at(c, np.linspace(0.0, c.length, max(2, int(np.ceil(c.length / step)) + 1)))
+                        for c in chains])
+    dist, _ = cKDTree(points).query(layout.vertices, distance_upper_bound=_ON_CREASE * layout.side + step)
+    return set(np.flatnonzero(dist <= _ON_CREASE * layout.side).tolist())
+
+
 def _at(chain: _Chain, s: np.ndarray) -> np.ndarray:
     """Points of the chain at arc lengths ``s`` (mm), (k, 3)."""
     return np.stack([np.interp(s, chain.arc, chain.points[:, k]) for k in range(3)], axis=1)
@@ -355,7 +370,7 @@ def _snap(layout: _Layout, chains: list[_Chain], failed: dict[tuple, str], index
         owner.update({v: key for v in path[1:-1]})
         along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(layout.vertices[path], axis=0), axis=1))])
         new[path] = _at(piece, _placement(layout.vertices[path], piece, along, layout.side))
-    _relax(new, layout, moved_by, set(owner) | set(ends.values()), index, region, home)
+    _relax(new, layout, moved_by, set(owner) | set(ends.values()) | layout.on_crease, index, region, home)
     return new, moved_by, pieces
 
 
