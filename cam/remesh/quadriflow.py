@@ -142,10 +142,10 @@ def remesh_quads(
         - ``min_cost_flow``: QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).
         - ``max_hausdorff_ratio``: largest accepted two-sided Hausdorff distance as a
           fraction of the input's bounding-box diagonal.
-        - ``snap_creases``: move the kept layout's vertices so that its edges run along the creases
-          (:func:`cam.remesh.snap.snap_to_creases`, after the choice); the report's ``snap`` says what was
-          snapped, what not and why, and the recall and straddling quads before. The distances in the
-          report are the snapped layout's.
+        - ``snap_creases``: move each passing layout's vertices so that its edges run along the creases
+          (:func:`cam.remesh.snap.snap_to_creases`) before the candidates are compared; the report's ``snap``
+          says what was snapped, what not and why, and the recall and straddling quads before. The
+          distances and crease measures in the report are the snapped layout's.
     progress
         ``progress(fraction, message)`` before each run and before its checks.
     check_cancel
@@ -178,13 +178,11 @@ def remesh_quads(
     """
     mesh = _prepare_input(vertices, faces)
     accepted, failures, runs = _run_attempts(mesh, params, processes=processes, progress=progress,
-                                             check_cancel=check_cancel)
+                                             check_cancel=check_cancel, crease_angle_deg=crease_angle_deg)
     if not accepted:
         raise RemeshFailed(f"QuadriFlow gave no usable quad mesh in {len(failures)} attempt(s): "
                            + "; ".join(failures) + ". Try another remesh.target_faces or remesh.seed")
     best = _keep_best(accepted, failures, runs)
-    if params.snap_creases:
-        best = _snap(best, mesh, crease_angle_deg)
     started = time.monotonic()
     conformity = measure_crease_conformity(best.vertices, best.faces, mesh.vertices, mesh.triangles,
                                            crease_angle_deg=crease_angle_deg)
@@ -192,20 +190,20 @@ def remesh_quads(
     return best
 
 
-def _snap(best: RemeshResult, mesh: _Input, crease_angle_deg: float) -> RemeshResult:
-    """The kept layout with its edges on the creases (`cam.remesh.snap`); its report gains ``snap`` (what was
-    snapped and what not, the recall and straddling quads before) and the distances anew."""
+def _snap(vertices: np.ndarray, faces: np.ndarray, mesh: _Input, facts: dict, crease_angle_deg: float
+          ) -> tuple[np.ndarray, dict]:
+    """A layout's vertices with its edges on the creases (`cam.remesh.snap`), and its facts with the distances
+    anew and ``snap`` (what was snapped and what not, the recall and straddling quads before)."""
     started = time.monotonic()
-    before = measure_crease_conformity(best.vertices, best.faces, mesh.vertices, mesh.triangles,
+    before = measure_crease_conformity(vertices, faces, mesh.vertices, mesh.triangles,
                                        crease_angle_deg=crease_angle_deg)
-    snapped = snap_to_creases(best.vertices, best.faces, mesh.vertices, mesh.triangles,
-                              crease_angle_deg=crease_angle_deg)
-    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, best.faces, mesh_index(mesh.vertices, mesh.triangles))
-    report = {**best.report, "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
-              "mean_distance_mm": mean, "snap_s": time.monotonic() - started,
-              "snap": {**snapped.report, "crease_recall_before": before.recall,
-                       "straddling_quads_before": len(before.straddling)}}
-    return RemeshResult(vertices=snapped.vertices, faces=best.faces, report=report)
+    snapped = snap_to_creases(vertices, faces, mesh.vertices, mesh.triangles, crease_angle_deg=crease_angle_deg)
+    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, faces, mesh_index(mesh.vertices, mesh.triangles))
+    return snapped.vertices, {
+        **facts, "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
+        "mean_distance_mm": mean, "snap_s": time.monotonic() - started,
+        "snap": {**snapped.report, "crease_recall_before": before.recall,
+                 "straddling_quads_before": len(before.straddling)}}
 
 
 def _prepare_input(vertices: np.ndarray, faces: np.ndarray) -> _Input:
@@ -241,7 +239,8 @@ def _check_manifold(tris: np.ndarray) -> None:
 
 
 def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progress: Progress | None,
-                  check_cancel: CheckCancel | None) -> tuple[list[RemeshResult], list[str], int]:
+                  check_cancel: CheckCancel | None, crease_angle_deg: float
+                  ) -> tuple[list[RemeshResult], list[str], int]:
     """Run QuadriFlow until ``params.candidates`` results passed or the attempts are spent.
 
     With ``processes`` > 1 the runs that would follow if this one passed run beside it (`QuadriflowRuns`);
@@ -287,7 +286,8 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
                 failures.append(f"seed {seed}, {target} faces: {exc}")
                 continue
             accepted.append(_measure_candidate(mesh, params, out_v, out_f, facts, seed=seed, runs=attempt + 1,
-                                               target=target, quadriflow_s=quadriflow_s, started=started))
+                                               target=target, quadriflow_s=quadriflow_s, started=started,
+                                               crease_angle_deg=crease_angle_deg))
             if len(accepted) >= params.candidates:
                 break
     finally:
@@ -316,11 +316,16 @@ def _seed_and_target(params: RemeshParams, attempt: int, *, after_failure: bool,
 
 
 def _measure_candidate(mesh: _Input, params: RemeshParams, out_v: np.ndarray, out_f: np.ndarray, facts: dict, *,
-                       seed: int, runs: int, target: int, quadriflow_s: float, started: float) -> RemeshResult:
-    """A result that passed, with its report: the run's facts, the checks' and how much crease it follows.
+                       seed: int, runs: int, target: int, quadriflow_s: float, started: float,
+                       crease_angle_deg: float) -> RemeshResult:
+    """A result that passed, snapped onto the creases when ``params.snap_creases``, with its report: the run's
+    facts, the checks' and how much crease it follows (snapped: the candidates are compared as they would be
+    kept).
 
     ``runs`` counts the runs so far, this one included; ``started`` is the run's start on ``time.monotonic``.
     """
+    if params.snap_creases:
+        out_v, facts = _snap(out_v, out_f, mesh, facts, crease_angle_deg)
     creases = measure_crease_following(out_v, out_f, mesh.vertices, mesh.triangles)
     report = {
         "seed": seed, "attempts": runs, "quadriflow_target_faces": target,
