@@ -10,7 +10,8 @@ crease inside it, so each such quad costs the fit its tolerance there.
 1. The creases of the triangle mesh (dihedral over ``crease_angle_deg``, and gentle ones over
    ``gentle_angle_deg`` that run on for at least two quads) are cut into chains at their corners: where
    three or more meet, where one ends, and where one turns by more than ``corner_turn_deg`` within a
-   quad's length (a pocket's rim at the pocket's corners). A closed crease with no corner is cut in two.
+   quad's length (a pocket's rim at the pocket's corners). A closed crease with fewer than two corners is cut
+   in two at opposite points.
 2. Every chain end gets its nearest free quad vertex. Longest chains first, Dijkstra's search over
    directed quad edges finds the path between a chain's two end vertices that keeps nearest the chain
    (edge length weighted by the squared distance in quarter quads), that does not turn inside a quad
@@ -285,8 +286,9 @@ def _cut_at_turns(walk: list[int], tv: np.ndarray, turn_deg: float, side: float)
         if turn[i] >= turn[near].max() and not any(abs(chain.arc[j] - chain.arc[i]) <= window for j in cuts):
             cuts.append(i)
     if closed:
-        if not cuts:
-            cuts = [0, int(np.searchsorted(chain.arc, 0.5 * chain.length))]
+        if len(cuts) < 2:  # a loop needs two ends: the point opposite its one corner, or two opposite points
+            first = cuts[0] if cuts else 0
+            cuts = [first, int(np.searchsorted(chain.arc, (chain.arc[first] + 0.5 * chain.length) % chain.length))]
         cuts = sorted({c % (len(walk) - 1) for c in cuts})
         ring = walk[:-1]
         pieces = []
