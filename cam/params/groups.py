@@ -89,9 +89,10 @@ class RemeshParams(_Group):
     min_cost_flow: bool = Field(False, description="QuadriFlow's min-cost-flow solver (slower, fewer singularities).")
     max_hausdorff_ratio: float = Field(0.05, gt=0, le=1, description="Largest accepted Hausdorff distance to the "
                                        "input, as a fraction of its bounding-box diagonal.")
-    snap_creases: bool = Field(True, description="Move the kept layout's vertices so that its edges run along "
-                               "the input's creases (over segment.sharp_angle_deg, and long ones over 35°): a crease "
-                               "no quad edge can follow is left as it is and reported.")
+    snap_creases: bool = Field(False, description="Move each layout's vertices so that its edges run along the "
+                               "input's creases (over segment.sharp_angle_deg, and long ones over 35°) before the "
+                               "layouts are compared: a crease no quad edge can follow is left as it is and reported. "
+                               "Off by default: the fit gets worse on some parts (bench/results/snap_fit.md).")
 
 
 class SegmentParams(_Group):

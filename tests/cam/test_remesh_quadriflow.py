@@ -42,7 +42,8 @@ def _box_triangles():
 
 def test_remesh_box_is_checked_closed_and_on_the_surface():
     mesh = _box_triangles()
-    result = remesh_quads(mesh.vertices, mesh.faces, RemeshParams(target_faces=300, seed=0, timeout_s=120))
+    result = remesh_quads(mesh.vertices, mesh.faces,
+                          RemeshParams(target_faces=300, seed=0, timeout_s=120, snap_creases=True))
     v, f = result.vertices, result.faces
     report = inspect_quad_mesh(v, f)
     assert report.problems == () and report.boundary_loop_lengths == () and report.components == 1

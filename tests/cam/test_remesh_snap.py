@@ -88,7 +88,7 @@ def _box_pocket_fillet() -> tuple[np.ndarray, np.ndarray]:
 
 def test_remesh_snaps_its_layout_onto_a_pocketed_part_s_creases():
     tv, tf = _box_pocket_fillet()
-    result = remesh_quads(tv, tf, RemeshParams(target_faces=1200, seed=0, timeout_s=120))
+    result = remesh_quads(tv, tf, RemeshParams(target_faces=1200, seed=0, timeout_s=120, snap_creases=True))
     report, snap = result.report, result.report["snap"]
     # measured again on the returned layout: the report's recall and straddling quads are the snapped layout's
     conformity = measure_crease_conformity(result.vertices, result.faces, tv, tf)
