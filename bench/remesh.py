@@ -349,18 +349,24 @@ def write_table(rows: list[dict], absent: list[str], out: Path, machine: str) ->
     (out / "remesh.md").write_text("\n".join(lines) + "\n")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--parts", default=",".join(PARTS), help="comma-separated part names (default: all)")
+def part_arguments(description: str, known: list[str], argv: list[str] | None) -> tuple[list[str], Path, Path]:
+    """The bench's --parts (checked against ``known``), --data and --out; the output folder is made."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--parts", default=",".join(known), help="comma-separated part names (default: all)")
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
     args = ap.parse_args(argv)
     names = [n for n in args.parts.split(",") if n]
-    unknown = [n for n in names if n not in PARTS]
+    unknown = [n for n in names if n not in known]
     if unknown:
-        ap.error(f"unknown parts {unknown}; known: {', '.join(PARTS)}")
-    data, out = Path(args.data), Path(args.out)
+        ap.error(f"unknown parts {unknown}; known: {', '.join(known)}")
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    return names, Path(args.data), out
+
+
+def main(argv: list[str] | None = None) -> int:
+    names, data, out = part_arguments(__doc__.split("\n\n")[0], list(PARTS), argv)
     machine = describe_machine()
     rows, absent = [], []
     for name in names:

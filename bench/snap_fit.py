@@ -15,7 +15,6 @@ The parts looked at while snapping was written (`seen`) and those never looked a
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -101,17 +100,9 @@ def write_table(rows: list[dict], out: Path, machine: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--parts", default=",".join(PARTS), help="comma-separated part names (default: all)")
-    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
-    args = ap.parse_args(argv)
-    names = [n for n in args.parts.split(",") if n]
-    unknown = [n for n in names if n not in PARTS]
-    if unknown:
-        ap.error(f"unknown parts {unknown}; known: {', '.join(PARTS)}")
-    data, out = Path(args.data), Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from remesh import part_arguments
+
+    names, data, out = part_arguments(__doc__.split("\n\n")[0], list(PARTS), argv)
     machine = describe_machine()
     rows = []
     for name in names:
