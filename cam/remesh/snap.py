@@ -17,10 +17,13 @@ crease inside it, so each such quad costs the fit its tolerance there.
    (edge length weighted by the squared distance in quarter quads), that does not turn inside a quad
    (two sides of one quad in a row would put three of its corners on one line; allowed where the quad's
    corner is nearly straight already, as QuadriFlow leaves some beside creases) and that uses no vertex
-   of another chain. A chain whose path is missing or half again longer than the chain is not snapped.
-3. The path's vertices move onto the chain, spaced along it as they were along the path; the vertices
-   within two rings of them follow by half their neighbours' moves, back on the triangle mesh in the
-   crease-bounded region they were in (but those that lie on a crease already, snapped or not).
+   of another chain. A chain without such a path is cut in two at its middle, where the nearest free
+   quad vertex becomes the halves' shared end, and the halves are tried after the chains (down to halves
+   of a quad and a half); a piece that still has none is not snapped.
+3. The path's vertices move onto the chain: each to its closest point where those run on in order a tenth
+   of a quad apart, else spaced along the chain as they were along the path. The vertices within two
+   rings of them follow by half their neighbours' moves, back on the triangle mesh in the crease-bounded
+   region they were in (but those that lie on a crease already, snapped or not).
 4. A quad that would fold (a corner turned against the quad's normal or the surface's) or collapse
    undoes the chains that moved it, and the rest are snapped again, for up to three rounds.
 
@@ -49,8 +52,6 @@ _SPREAD = 0.25
 _STRAIGHT_DEG = 150.0
 # Quad vertices searched around a chain: within this many quad lengths of it.
 _CORRIDOR = 1.0
-# A path longer than this times its chain zigzags across it.
-_MAX_DETOUR = 1.5
 # A chain shorter than this many quad lengths is too short for a quad edge of its own.
 _MIN_CHAIN = 0.5
 # A chain with no path along it is cut in halves no shorter than this many quad lengths.
