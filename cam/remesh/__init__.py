@@ -3,7 +3,7 @@
 `quadriflow` holds the entry point: it runs QuadriFlow several times (`process`, in the child process
 of `child`, with a timeout), brings each result onto the input and checks it (`accept`), and keeps the
 one whose edges follow the most of the input's creases (`creases`); with `remesh.snap_creases` each is first
-moved so that its edges run along them (`snap`). `check` inspects a quad mesh,
+moved so that its edges run along them (`snap`, along the crease chains of `chains`). `check` inspects a quad mesh,
 `repair` fixes what is small and safe, and `holes` closes the triangular holes QuadriFlow leaves.
 """
 

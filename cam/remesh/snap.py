@@ -5,7 +5,7 @@ the quad edges run near a crease, a tenth of a quad off it, and near a crease's 
 over it. Segment puts patch borders on sharp quad edges and the fit cannot bend a bicubic patch round a
 crease inside it, so each such quad costs the fit its tolerance there.
 
-`snap_to_creases` makes every crease it can a chain of quad edges:
+`snap_to_creases` makes every crease it can a chain of quad edges (the chains: `cam.remesh.chains`):
 
 1. The creases of the triangle mesh (dihedral over ``crease_angle_deg``, and gentle ones over
    ``gentle_angle_deg`` that run on for at least two quads) are cut into chains at their corners: where
@@ -38,11 +38,17 @@ import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from cam.mesh.closest import MeshIndex, closest_points, mesh_index
+from cam.remesh.chains import (
+    Chain,
+    chain_from_points,
+    closest_arc,
+    crease_chains,
+    distance_to_polyline,
+    points_at,
+)
 
 __all__ = ["Snapped", "snap_to_creases"]
 
@@ -56,8 +62,6 @@ _CORRIDOR = 1.0
 _MIN_CHAIN = 0.5
 # A chain with no path along it is cut in halves no shorter than this many quad lengths.
 _MIN_SPLIT = 1.5
-# Gentle creases count from this many quad lengths on.
-_MIN_GENTLE = 2.0
 # A quad vertex this near a crease (in quad lengths) follows it already: relaxing does not move it.
 _ON_CREASE = 0.05
 # Rings of vertices round the moved ones that are relaxed, and the rounds of relaxation.
@@ -87,17 +91,6 @@ class Snapped:
 
     vertices: np.ndarray
     report: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True, eq=False)
-class _Chain:
-    points: np.ndarray  # (k, 3) float64, the crease polyline end to end, mm
-    arc: np.ndarray  # (k,) float64, arc length from the first point, mm
-    ends: tuple  # keys of its two ends: a triangle-mesh vertex id, or the key of the piece a split point cut
-
-    @property
-    def length(self) -> float:
-        return float(self.arc[-1])
 
 
 class _Layout:
@@ -167,7 +160,8 @@ def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.n
         raise ValueError(f"need 0 < gentle_angle_deg <= crease_angle_deg < 180 and 0 < corner_turn_deg < 180, got "
                          f"{gentle_angle_deg}, {crease_angle_deg} and {corner_turn_deg}")
     layout = _Layout(qv, qf)
-    chains, region = _crease_chains(tv, tf, crease_angle_deg, gentle_angle_deg, corner_turn_deg, layout.side)
+    chains, region = crease_chains(tv, tf, crease_angle_deg=crease_angle_deg, gentle_angle_deg=gentle_angle_deg,
+                                   corner_turn_deg=corner_turn_deg, quad_mm=layout.side)
     layout.on_crease = _on_creases(layout, chains)
     index = mesh_index(tv, tf)
     home = region[closest_points(index, qv)[2]]
@@ -202,141 +196,21 @@ def _check(quad_vertices, quads, vertices, triangles) -> tuple[np.ndarray, np.nd
     return qv, qf, tv, tf
 
 
-# --- crease chains ------------------------------------------------------------------------------------------
-
-def _crease_chains(tv: np.ndarray, tf: np.ndarray, angle_deg: float, gentle_deg: float, turn_deg: float,
-                   side: float) -> tuple[list[_Chain], np.ndarray]:
-    """The creases cut into chains at their corners, and each triangle's crease-bounded region (int64 (q,))."""
-    import trimesh
-
-    mesh = trimesh.Trimesh(tv, tf, process=False)
-    angles = np.asarray(mesh.face_adjacency_angles)
-    pairs = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
-    creased = angles > np.radians(gentle_deg)
-    edges = np.sort(np.asarray(mesh.face_adjacency_edges, dtype=np.int64).reshape(-1, 2)[creased], axis=1)
-    sharp = {(a, b) for (a, b), s in zip(edges.tolist(), (angles[creased] > np.radians(angle_deg)).tolist(), strict=True)
-             if s}
-    smooth = pairs[~creased]
-    joined = coo_matrix((np.ones(len(smooth)), (smooth[:, 0], smooth[:, 1])), shape=(len(tf), len(tf)))
-    region = connected_components(joined, directed=False)[1].astype(np.int64)
-    chains = []
-    for walk in _walks(np.unique(edges, axis=0)):
-        for piece in _cut_at_turns(walk, tv, turn_deg, side):
-            chain = _make_chain(piece, tv)
-            if chain.length >= _MIN_GENTLE * side or any((min(a, b), max(a, b)) in sharp
-                                                         for a, b in itertools.pairwise(piece)):
-                chains.append(chain)
-    chains.sort(key=lambda c: -c.length)
-    return chains, region
-
-
-def _make_chain(ids: list[int], tv: np.ndarray) -> _Chain:
-    return _polyline(tv[ids], (ids[0], ids[-1]))
-
-
-def _polyline(points: np.ndarray, ends: tuple) -> _Chain:
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return _Chain(points=points, arc=arc, ends=ends)
-
-
-def _walks(edges: np.ndarray) -> list[list[int]]:
-    """The crease graph's edges as walks between vertices of degree other than two; closed loops start and end
-    at one vertex."""
-    adjacent: dict[int, list[int]] = {}
-    for a, b in edges.tolist():
-        adjacent.setdefault(a, []).append(b)
-        adjacent.setdefault(b, []).append(a)
-    used: set[tuple[int, int]] = set()
-    walks = []
-
-    def walk_from(a: int, b: int) -> list[int]:
-        path = [a, b]
-        used.add((min(a, b), max(a, b)))
-        while len(adjacent[path[-1]]) == 2 and path[-1] != path[0]:
-            nxt = next((n for n in adjacent[path[-1]] if (min(n, path[-1]), max(n, path[-1])) not in used), None)
-            if nxt is None:
-                break
-            used.add((min(nxt, path[-1]), max(nxt, path[-1])))
-            path.append(nxt)
-        return path
-
-    for v in sorted(adjacent):
-        if len(adjacent[v]) != 2:
-            for n in adjacent[v]:
-                if (min(v, n), max(v, n)) not in used:
-                    walks.append(walk_from(v, n))
-    for v in sorted(adjacent):  # what is left are loops of degree-two vertices
-        for n in adjacent[v]:
-            if (min(v, n), max(v, n)) not in used:
-                walks.append(walk_from(v, n))
-    return walks
-
-
-def _cut_at_turns(walk: list[int], tv: np.ndarray, turn_deg: float, side: float) -> list[list[int]]:
-    """The walk cut where it turns by more than ``turn_deg`` over half a quad on either side (the sharpest point
-    of each turn); a closed walk without a turn is cut in two halves."""
-    closed = walk[0] == walk[-1] and len(walk) > 2
-    chain = _make_chain(walk, tv)
-    turn = _turning(chain, 0.5 * side, closed)
-    window = 0.5 * side
-    cuts = []
-    for i in np.flatnonzero(turn > np.radians(turn_deg)).tolist():
-        near = np.abs(chain.arc - chain.arc[i]) <= window
-        if closed:
-            near |= chain.length - np.abs(chain.arc - chain.arc[i]) <= window
-        if turn[i] >= turn[near].max() and not any(abs(chain.arc[j] - chain.arc[i]) <= window for j in cuts):
-            cuts.append(i)
-    if closed:
-        if len(cuts) < 2:  # a loop needs two ends: the point opposite its one corner, or two opposite points
-            first = cuts[0] if cuts else 0
-            cuts = [first, int(np.searchsorted(chain.arc, (chain.arc[first] + 0.5 * chain.length) % chain.length))]
-        cuts = sorted({c % (len(walk) - 1) for c in cuts})
-        ring = walk[:-1]
-        pieces = []
-        for a, b in zip(cuts, cuts[1:] + [cuts[0] + len(ring)], strict=True):
-            pieces.append([ring[k % len(ring)] for k in range(a, b + 1)])
-        return [p for p in pieces if len(p) >= 2]
-    bounds = [0, *sorted(c for c in cuts if 0 < c < len(walk) - 1), len(walk) - 1]
-    return [walk[a:b + 1] for a, b in itertools.pairwise(bounds)]
-
-
-def _turning(chain: _Chain, reach: float, closed: bool) -> np.ndarray:
-    """Angle (rad) between the chain's directions over ``reach`` mm before and after each point; 0 at open ends."""
-    s = chain.arc
-    if closed:
-        length = chain.length
-        before = _at(chain, (s - reach) % length)
-        after = _at(chain, (s + reach) % length)
-    else:
-        before = _at(chain, np.maximum(s - reach, 0.0))
-        after = _at(chain, np.minimum(s + reach, chain.length))
-    d0, d1 = chain.points - before, after - chain.points
-    n0, n1 = np.linalg.norm(d0, axis=1), np.linalg.norm(d1, axis=1)
-    ok = (n0 > 1e-12) & (n1 > 1e-12)
-    cos = np.einsum("ij,ij->i", d0, d1) / np.where(ok, n0 * n1, 1.0)
-    return np.where(ok, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
-
-
-def _on_creases(layout: _Layout, chains: list[_Chain]) -> set[int]:
+def _on_creases(layout: _Layout, chains: list[Chain]) -> set[int]:
     """The quad vertices within `_ON_CREASE` quad lengths of a chain: they follow a crease already."""
     if not chains:
         return set()
     step = 0.125 * layout.side
-    points = np.vstack([_at(c, np.linspace(0.0, c.length, max(2, int(np.ceil(c.length / step)) + 1)))
+    points = np.vstack([points_at(c, np.linspace(0.0, c.length, max(2, int(np.ceil(c.length / step)) + 1)))
                         for c in chains])
     dist, _ = cKDTree(points).query(layout.vertices, distance_upper_bound=_ON_CREASE * layout.side + step)
     return set(np.flatnonzero(dist <= _ON_CREASE * layout.side).tolist())
 
 
-def _at(chain: _Chain, s: np.ndarray) -> np.ndarray:
-    """Points of the chain at arc lengths ``s`` (mm), (k, 3)."""
-    return np.stack([np.interp(s, chain.arc, chain.points[:, k]) for k in range(3)], axis=1)
-
-
 # --- snapping -----------------------------------------------------------------------------------------------
 
-def _snap(layout: _Layout, chains: list[_Chain], failed: dict[tuple, str], index: MeshIndex, region: np.ndarray,
-          home: np.ndarray) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, _Chain]]:
+def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], index: MeshIndex, region: np.ndarray,
+          home: np.ndarray) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, Chain]]:
     """Snap the chains, longest first, but the pieces in ``failed`` (key -> why; keys: (chain,), and a split
     piece's its parent's with 0 or 1 added), and add why others fail. A chain with no path along it is cut in
     two at its middle, where a quad vertex of its own goes (down to `_MIN_SPLIT` quads), and its halves are
@@ -348,7 +222,7 @@ def _snap(layout: _Layout, chains: list[_Chain], failed: dict[tuple, str], index
     owner: dict[int, tuple] = {}  # vertex -> the piece whose path runs through it (ends excluded)
     moved_by: dict[int, set[tuple]] = {}
     queue = [((c,), chain) for c, chain in enumerate(chains)]
-    pieces: dict[tuple, _Chain] = {}
+    pieces: dict[tuple, Chain] = {}
     for key, piece in queue:  # grows while it is walked: the halves of cut pieces
         pieces[key] = piece
         if key in failed:
@@ -372,25 +246,25 @@ def _snap(layout: _Layout, chains: list[_Chain], failed: dict[tuple, str], index
             moved_by.setdefault(v, set()).add(key)
         owner.update({v: key for v in path[1:-1]})
         along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(layout.vertices[path], axis=0), axis=1))])
-        new[path] = _at(piece, _placement(layout.vertices[path], piece, along, layout.side))
+        new[path] = points_at(piece, _placement(layout.vertices[path], piece, along, layout.side))
     _relax(new, layout, moved_by, set(owner) | set(ends.values()) | layout.on_crease, index, region, home)
     return new, moved_by, pieces
 
 
-def _halves(layout: _Layout, key: tuple, piece: _Chain, ends: dict, owner: dict[int, tuple]
-            ) -> list[tuple[tuple, _Chain]]:
+def _halves(layout: _Layout, key: tuple, piece: Chain, ends: dict, owner: dict[int, tuple]
+            ) -> list[tuple[tuple, Chain]]:
     """The two halves of a piece cut at its middle, where a free quad vertex near it becomes their shared end
     (added to ``ends``); none when the piece is shorter than 2 `_MIN_SPLIT` quads or no vertex is free there."""
     if piece.length < 2 * _MIN_SPLIT * layout.side:
         return []
-    middle = _at(piece, np.array([0.5 * piece.length]))
+    middle = points_at(piece, np.array([0.5 * piece.length]))
     got = _end_vertices(layout, {key: middle[0]}, taken=set(ends.values()) | set(owner))
     if key not in got:
         return []
     ends[key] = got[key]
     k = int(np.searchsorted(piece.arc, 0.5 * piece.length, side="right"))
     first, second = np.vstack([piece.points[:k], middle]), np.vstack([middle, piece.points[k:]])
-    return [(key + (0,), _polyline(first, (piece.ends[0], key))), (key + (1,), _polyline(second, (key, piece.ends[1])))]
+    return [(key + (0,), chain_from_points(first, (piece.ends[0], key))), (key + (1,), chain_from_points(second, (key, piece.ends[1])))]
 
 
 def _end_vertices(layout: _Layout, points: dict, *, taken: set[int]) -> dict:
@@ -413,13 +287,13 @@ def _end_vertices(layout: _Layout, points: dict, *, taken: set[int]) -> dict:
     return ends
 
 
-def _path(layout: _Layout, chain: _Chain, va: int, vb: int, *, blocked: set[int]) -> list[int] | None:
+def _path(layout: _Layout, chain: Chain, va: int, vb: int, *, blocked: set[int]) -> list[int] | None:
     """The cheapest quad-edge path va -> vb along the chain (see the module docstring), or None."""
     side = layout.side
-    samples = _at(chain, np.linspace(0.0, chain.length, max(2, int(np.ceil(4 * chain.length / side)) + 1)))
+    samples = points_at(chain, np.linspace(0.0, chain.length, max(2, int(np.ceil(4 * chain.length / side)) + 1)))
     near = sorted(set(itertools.chain.from_iterable(layout.tree.query_ball_point(samples, _CORRIDOR * side))))
     near = [v for v in near if v not in blocked] + [va, vb]
-    dist = dict(zip(near, _distance_to_polyline(layout.vertices[near], chain.points).tolist(), strict=True))
+    dist = dict(zip(near, distance_to_polyline(layout.vertices[near], chain.points).tolist(), strict=True))
     weight = {v: 1.0 + (d / (_SPREAD * side)) ** 2 for v, d in dist.items()}
     V = layout.vertices
     start = (-1, va)
@@ -451,35 +325,14 @@ def _path(layout: _Layout, chain: _Chain, va: int, vb: int, *, blocked: set[int]
     return None
 
 
-def _placement(points: np.ndarray, chain: _Chain, along: np.ndarray, side: float) -> np.ndarray:
+def _placement(points: np.ndarray, chain: Chain, along: np.ndarray, side: float) -> np.ndarray:
     """Arc lengths (mm) on the chain for a path's vertices (k, 3): each vertex's closest point where those run on
     in order, at least a tenth of a quad apart; otherwise spaced as the vertices are along the path (``along``)."""
-    s = _closest_arc(points, chain)
+    s = closest_arc(points, chain)
     s[0], s[-1] = 0.0, chain.length
     if np.all(np.diff(s) > 0.1 * side):
         return s
     return along / along[-1] * chain.length
-
-
-def _closest_arc(points: np.ndarray, chain: _Chain) -> np.ndarray:
-    """Arc length (mm) of the closest chain point to each point (n, 3)."""
-    a, b = chain.points[:-1], chain.points[1:]
-    ab = b - a
-    ab2 = np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-300)
-    t = np.clip(np.einsum("nkd,kd->nk", points[:, None, :] - a[None], ab) / ab2, 0.0, 1.0)
-    d = np.linalg.norm(a[None] + t[..., None] * ab[None] - points[:, None, :], axis=2)
-    k = np.argmin(d, axis=1)
-    rows = np.arange(len(points))
-    return chain.arc[k] + t[rows, k] * np.sqrt(ab2[k])
-
-
-def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point (n, 3) to the polyline (k, 3)."""
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    t = np.einsum("nkd,kd->nk", points[:, None, :] - a[None], ab) / np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-300)
-    q = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
-    return np.linalg.norm(q - points[:, None, :], axis=2).min(axis=1)
 
 
 def _relax(new: np.ndarray, layout: _Layout, moved_by: dict[int, set[tuple]], fixed: set[int], index: MeshIndex,
@@ -544,7 +397,7 @@ def _quad_shape(p: np.ndarray, index: MeshIndex) -> tuple[np.ndarray, np.ndarray
     return inside_out | against | ~(length > 0), 0.5 * length
 
 
-def _report(chains: list[_Chain], pieces: dict[tuple, _Chain], failed: dict[tuple, str], old: np.ndarray,
+def _report(chains: list[Chain], pieces: dict[tuple, Chain], failed: dict[tuple, str], old: np.ndarray,
             new: np.ndarray) -> dict:
     move = np.linalg.norm(new - old, axis=1)
     cut = {key[:-1] for key in pieces if len(key) > 1}
