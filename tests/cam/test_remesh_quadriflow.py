@@ -171,8 +171,8 @@ def test_of_the_candidates_the_one_that_follows_the_creases_best_is_kept():
     from cam.remesh.creases import measure_crease_following
 
     mesh = _box_with_a_corner_cut_off()
-    # The choice is made before the kept layout's edges are snapped: without snapping, the kept layout is the
-    # candidate as it was measured.
+    # Without snapping (the default, said here as this test is about it) the kept layout is the candidate as it
+    # was measured.
     result = remesh_quads(mesh.vertices, mesh.faces,
                           RemeshParams(target_faces=400, seed=0, candidates=3, timeout_s=120, snap_creases=False))
     report = result.report
