@@ -138,8 +138,8 @@ def normal_residuals(x: np.ndarray, faces: np.ndarray, rings: int, max_neighbour
         raise ValueError(f"rings must be at least 1, got {rings}")
     if max_neighbours < _MIN_NEIGHBOURS:
         raise ValueError(f"max_neighbours must be at least {_MIN_NEIGHBOURS}, got {max_neighbours}")
-    idx, mask = _ring_neighbourhoods(x, faces, rings, max_neighbours)
-    return quadric_residuals(x, idx, mask.sum(axis=1), min_count=_MIN_NEIGHBOURS)
+    idx, count = _ring_neighbourhoods(x, faces, rings, max_neighbours)
+    return quadric_residuals(x, idx, count, min_count=_MIN_NEIGHBOURS)
 
 
 def _robust_sigma(residuals: np.ndarray) -> tuple[float, int]:
@@ -151,13 +151,13 @@ def _robust_sigma(residuals: np.ndarray) -> tuple[float, int]:
 
 def _ring_neighbourhoods(x: np.ndarray, faces: np.ndarray, rings: int,
                          max_neighbours: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, K) indices of the nearest vertices within ``rings`` edges of each vertex, and their mask."""
+    """(n, K) indices of the nearest vertices within ``rings`` edges of each vertex, the first ``count`` (n,) of
+    each row (`cam.denoise._noisekernel.ring_neighbourhoods`)."""
     n = len(x)
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     adj = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
                         shape=(n, n))
-    idx, count = ring_neighbourhoods(x, adj.indptr, adj.indices, rings=rings, max_neighbours=max_neighbours)
-    return idx, np.arange(idx.shape[1])[None, :] < count[:, None]
+    return ring_neighbourhoods(x, adj.indptr, adj.indices, rings=rings, max_neighbours=max_neighbours)
 
 
 def _check(x, faces) -> tuple[np.ndarray, np.ndarray]:

@@ -13,8 +13,8 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+
+from cam.remesh.creases import crease_graph
 
 __all__ = ["Chain", "chain_from_points", "closest_arc", "crease_chains", "distance_to_polyline", "points_at"]
 
@@ -61,28 +61,17 @@ def crease_chains(tv: np.ndarray, tf: np.ndarray, *, crease_angle_deg: float, ge
     region : (q,) int64
         Each triangle's region: triangles joined across edges that are not creases.
     """
-    import trimesh
-
-    angle_deg, gentle_deg, turn_deg, side = crease_angle_deg, gentle_angle_deg, corner_turn_deg, quad_mm
-    mesh = trimesh.Trimesh(tv, tf, process=False)
-    angles = np.asarray(mesh.face_adjacency_angles)
-    pairs = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
-    creased = angles > np.radians(gentle_deg)
-    edges = np.sort(np.asarray(mesh.face_adjacency_edges, dtype=np.int64).reshape(-1, 2)[creased], axis=1)
-    sharp = {(a, b) for (a, b), s in zip(edges.tolist(), (angles[creased] > np.radians(angle_deg)).tolist(), strict=True)
-             if s}
-    smooth = pairs[~creased]
-    joined = coo_matrix((np.ones(len(smooth)), (smooth[:, 0], smooth[:, 1])), shape=(len(tf), len(tf)))
-    region = connected_components(joined, directed=False)[1].astype(np.int64)
+    graph = crease_graph(tv, tf, gentle_angle_deg)
+    sharp = set(map(tuple, graph.edges[graph.edge_angle_deg > crease_angle_deg].tolist()))
     chains = []
-    for walk in _walks(np.unique(edges, axis=0)):
-        for piece in _cut_at_turns(walk, tv, turn_deg, side):
+    for walk in _walks(graph.edges):
+        for piece in _cut_at_turns(walk, tv, corner_turn_deg, quad_mm):
             chain = _make_chain(piece, tv)
-            if chain.length >= _MIN_GENTLE * side or any((min(a, b), max(a, b)) in sharp
-                                                         for a, b in itertools.pairwise(piece)):
+            if chain.length >= _MIN_GENTLE * quad_mm or any((min(a, b), max(a, b)) in sharp
+                                                            for a, b in itertools.pairwise(piece)):
                 chains.append(chain)
     chains.sort(key=lambda c: -c.length)
-    return chains, region
+    return chains, graph.face_region
 
 
 def _make_chain(ids: list[int], tv: np.ndarray) -> Chain:
@@ -179,20 +168,23 @@ def points_at(chain: Chain, s: np.ndarray) -> np.ndarray:
 
 def closest_arc(points: np.ndarray, chain: Chain) -> np.ndarray:
     """Arc length (mm) of the closest chain point to each point (n, 3)."""
-    a, b = chain.points[:-1], chain.points[1:]
+    k, along, _ = _closest_on_segments(points, chain.points)
+    return chain.arc[k] + along
+
+
+def distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each point (n, 3) to the polyline (k, 3)."""
+    return _closest_on_segments(points, line)[2]
+
+
+def _closest_on_segments(points: np.ndarray, line: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each point (n, 3), the polyline (k, 3) segment it is closest to (int (n,)), how far along that segment
+    its closest point lies (mm, (n,)) and how far the point is from it (mm, (n,))."""
+    a, b = line[:-1], line[1:]
     ab = b - a
     ab2 = np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-300)
     t = np.clip(np.einsum("nkd,kd->nk", points[:, None, :] - a[None], ab) / ab2, 0.0, 1.0)
     d = np.linalg.norm(a[None] + t[..., None] * ab[None] - points[:, None, :], axis=2)
     k = np.argmin(d, axis=1)
     rows = np.arange(len(points))
-    return chain.arc[k] + t[rows, k] * np.sqrt(ab2[k])
-
-
-def distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point (n, 3) to the polyline (k, 3)."""
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    t = np.einsum("nkd,kd->nk", points[:, None, :] - a[None], ab) / np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-300)
-    q = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
-    return np.linalg.norm(q - points[:, None, :], axis=2).min(axis=1)
+    return k, t[rows, k] * np.sqrt(ab2[k]), d[rows, k]

@@ -27,7 +27,8 @@ from scipy.spatial import cKDTree
 from cam.mesh.closest import closest_points, mesh_index
 from cam.mesh.creases import mesh_creases
 
-__all__ = ["CreaseConformity", "CreaseFollowing", "measure_crease_conformity", "measure_crease_following"]
+__all__ = ["CreaseConformity", "CreaseFollowing", "CreaseGraph", "crease_graph", "measure_crease_conformity",
+           "measure_crease_following"]
 
 # Points per crease edge: each stands for a quarter of the edge, so a crease half followed counts half.
 _SAMPLES = 4
@@ -154,13 +155,14 @@ class CreaseConformity:
                 "straddling_quads": len(self.straddling)}
 
 
-class _CreaseGraph(NamedTuple):
+class CreaseGraph(NamedTuple):
     """The creases of a triangle mesh and the regions they bound."""
 
     edges: np.ndarray  # int64 (k, 2): crease edges as sorted vertex pairs, each once
     pair_edge: np.ndarray  # int64 (r,): the crease edge of each sharp face pair
     pair_faces: np.ndarray  # int64 (r, 2): the two triangles of each sharp face pair
     face_region: np.ndarray  # int64 (q,): crease-bounded region of each triangle
+    edge_angle_deg: np.ndarray  # float64 (k,): each crease edge's angle between its faces' normals (the largest)
 
 
 def measure_crease_conformity(
@@ -225,7 +227,7 @@ def measure_crease_conformity(
     if not diagonal > 0:
         raise ValueError(f"the triangle mesh has zero extent (bounding-box diagonal {diagonal} mm)")
     tol = tolerance_ratio * diagonal
-    graph = _crease_graph(tv, tf, crease_angle_deg)
+    graph = crease_graph(tv, tf, crease_angle_deg)
     qe = np.unique(np.sort(np.stack([qf, np.roll(qf, -1, axis=1)], axis=-1).reshape(-1, 2), axis=1), axis=0)
     qe = qe[qe[:, 0] != qe[:, 1]]
     p, q = qv[qe[:, 0]], qv[qe[:, 1]]
@@ -253,13 +255,18 @@ def _check_meshes(quad_vertices, quads, vertices, triangles) -> tuple[np.ndarray
     return qv, qf, tv, tf
 
 
-def _crease_graph(vertices: np.ndarray, triangles: np.ndarray, angle_deg: float) -> _CreaseGraph:
+def crease_graph(vertices: np.ndarray, triangles: np.ndarray, angle_deg: float) -> CreaseGraph:
     """Crease edges (normals over ``angle_deg`` apart, as :func:`cam.mesh.creases.mesh_creases` finds them) and the
-    regions of triangles joined across the other edges."""
+    regions of triangles joined across the other edges.
+
+    ``vertices`` float (p, 3) mm and ``triangles`` int (q, 3) are the triangle mesh; see `CreaseGraph` for what
+    is returned.
+    """
     import trimesh
 
     mesh = trimesh.Trimesh(vertices, triangles, process=False)
     pairs = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
+    angles = np.degrees(np.asarray(mesh.face_adjacency_angles, dtype=np.float64))
     sharp = mesh.face_adjacency_angles > np.radians(angle_deg)
     # An edge of more than two triangles gives several face pairs; its length counts once.
     edges, pair_edge = np.unique(np.sort(np.asarray(mesh.face_adjacency_edges)[sharp], axis=1).reshape(-1, 2),
@@ -268,8 +275,10 @@ def _crease_graph(vertices: np.ndarray, triangles: np.ndarray, angle_deg: float)
     n = len(triangles)
     joined = coo_matrix((np.ones(len(smooth)), (smooth[:, 0], smooth[:, 1])), shape=(n, n))
     _, region = connected_components(joined, directed=False)
-    return _CreaseGraph(edges.astype(np.int64), pair_edge.reshape(-1).astype(np.int64), pairs[sharp],
-                        region.astype(np.int64))
+    pair_edge = pair_edge.reshape(-1).astype(np.int64)
+    edge_angle = np.zeros(len(edges))
+    np.maximum.at(edge_angle, pair_edge, angles[sharp])
+    return CreaseGraph(edges.astype(np.int64), pair_edge, pairs[sharp], region.astype(np.int64), edge_angle)
 
 
 def _split_segments(a: np.ndarray, b: np.ndarray, piece: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -391,7 +400,7 @@ def _quadratic_at_most_zero(a: np.ndarray, b: np.ndarray, c: np.ndarray,
     return lo, hi
 
 
-def _straddling_quads(qv: np.ndarray, qf: np.ndarray, tv: np.ndarray, tf: np.ndarray, graph: _CreaseGraph,
+def _straddling_quads(qv: np.ndarray, qf: np.ndarray, tv: np.ndarray, tf: np.ndarray, graph: CreaseGraph,
                       starts: np.ndarray, vecs: np.ndarray, parent: np.ndarray, tol: float) -> np.ndarray:
     """Quads (int64 indices, ascending) whose vertices share no crease-bounded region; see
     :func:`measure_crease_conformity` for which regions a vertex lies in."""

@@ -22,7 +22,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cam import CheckCancel, GeometryError, Progress
-from cam.mesh.closest import mesh_index
+from cam.mesh.closest import MeshIndex, mesh_index
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads, hausdorff_to_mesh
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
@@ -71,6 +71,7 @@ class _Input(NamedTuple):
     triangles: np.ndarray  # int64 (m, 3)
     boundary_loops: int
     diagonal_mm: float
+    index: MeshIndex | None = None  # its closest-point index, built once when the layouts are snapped
 
 
 def boundary_loop_count(triangles: np.ndarray, n_vertices: int) -> int:
@@ -177,6 +178,8 @@ def remesh_quads(
         When every attempt failed: the message lists each attempt's seed and reason.
     """
     mesh = _prepare_input(vertices, faces)
+    if params.snap_creases:
+        mesh = mesh._replace(index=mesh_index(mesh.vertices, mesh.triangles))
     accepted, failures, runs = _run_attempts(mesh, params, processes=processes, progress=progress,
                                              check_cancel=check_cancel, crease_angle_deg=crease_angle_deg)
     if not accepted:
@@ -197,8 +200,9 @@ def _snap(vertices: np.ndarray, faces: np.ndarray, mesh: _Input, facts: dict, cr
     started = time.monotonic()
     before = measure_crease_conformity(vertices, faces, mesh.vertices, mesh.triangles,
                                        crease_angle_deg=crease_angle_deg)
-    snapped = snap_to_creases(vertices, faces, mesh.vertices, mesh.triangles, crease_angle_deg=crease_angle_deg)
-    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, faces, mesh_index(mesh.vertices, mesh.triangles))
+    snapped = snap_to_creases(vertices, faces, mesh.vertices, mesh.triangles, crease_angle_deg=crease_angle_deg,
+                              index=mesh.index)
+    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, faces, mesh.index)
     return snapped.vertices, {
         **facts, "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
         "mean_distance_mm": mean, "snap_s": time.monotonic() - started,

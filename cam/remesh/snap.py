@@ -71,6 +71,8 @@ _RELAX_ROUNDS = 4
 _MIN_AREA = 0.2
 # Rounds of undoing the chains that fold quads.
 _ROUNDS = 3
+# Why a piece whose snapping folds or collapses a quad is not snapped.
+_FOLDS = "snapping it folds a quad"
 # Chains listed in the report at most (the counts cover all).
 _REPORTED = 20
 
@@ -120,12 +122,11 @@ class _Layout:
                 u, v, w = f[i - 1], f[i], f[(i + 1) % 4]
                 self.turns[(u, v, w)] = self.turns[(w, v, u)] = a[i]
         self.tree = cKDTree(vertices)
-        self.on_crease: set[int] = set()  # vertices that follow a crease already: relaxing leaves them
 
 
 def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, *,
                     crease_angle_deg: float = 50.0, gentle_angle_deg: float = 35.0,
-                    corner_turn_deg: float = 40.0) -> Snapped:
+                    corner_turn_deg: float = 40.0, index: MeshIndex | None = None) -> Snapped:
     """Move a quad layout's vertices so that its edges run along the triangle mesh's creases.
 
     Parameters
@@ -145,6 +146,8 @@ def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.n
         in (0, ``crease_angle_deg``].
     corner_turn_deg : float
         A crease that turns by more than this within a quad's length has a corner there, degrees in (0, 180).
+    index : MeshIndex or None
+        The triangle mesh's closest-point index (`cam.mesh.closest.mesh_index`) where the caller has one built.
 
     Returns
     -------
@@ -162,20 +165,19 @@ def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.n
     layout = _Layout(qv, qf)
     chains, region = crease_chains(tv, tf, crease_angle_deg=crease_angle_deg, gentle_angle_deg=gentle_angle_deg,
                                    corner_turn_deg=corner_turn_deg, quad_mm=layout.side)
-    layout.on_crease = _on_creases(layout, chains)
-    index = mesh_index(tv, tf)
+    on_crease = _on_creases(layout, chains)
+    index = mesh_index(tv, tf) if index is None else index
     home = region[closest_points(index, qv)[2]]
     failed: dict[tuple, str] = {}
     for _ in range(_ROUNDS + 1):
-        new, moved_by, pieces = _snap(layout, chains, failed, index, region, home)
+        new, moved_by, pieces = _snap(layout, chains, failed, index, region, home, on_crease)
         folded = _folded(new, layout, index)
         if not len(folded):
             return Snapped(vertices=new, report=_report(chains, pieces, failed, qv, new))
         for key in {key for k in folded.tolist() for v in qf[k].tolist() for key in moved_by.get(v, ())}:
-            failed[key] = "snapping it folds a quad"
+            failed[key] = _FOLDS
     whole = {(c,): chain for c, chain in enumerate(chains)}
-    return Snapped(vertices=qv.copy(), report=_report(chains, whole, dict.fromkeys(whole, "snapping folds quads"),
-                                                      qv, qv))
+    return Snapped(vertices=qv.copy(), report=_report(chains, whole, dict.fromkeys(whole, _FOLDS), qv, qv))
 
 
 def _check(quad_vertices, quads, vertices, triangles) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -210,11 +212,12 @@ def _on_creases(layout: _Layout, chains: list[Chain]) -> set[int]:
 # --- snapping -----------------------------------------------------------------------------------------------
 
 def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], index: MeshIndex, region: np.ndarray,
-          home: np.ndarray) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, Chain]]:
+          home: np.ndarray, on_crease: set[int]) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, Chain]]:
     """Snap the chains, longest first, but the pieces in ``failed`` (key -> why; keys: (chain,), and a split
     piece's its parent's with 0 or 1 added), and add why others fail. A chain with no path along it is cut in
     two at its middle, where a quad vertex of its own goes (down to `_MIN_SPLIT` quads), and its halves are
-    tried after the chains. Returns the new vertices, the pieces that moved each vertex, and every piece tried."""
+    tried after the chains; relaxing leaves the vertices `on_crease`. Returns the new vertices, the pieces that
+    moved each vertex, and every piece tried."""
     new = layout.vertices.copy()
     corners = {e: chains[c].points[k] for c in range(len(chains)) if (c,) not in failed
                for e, k in zip(chains[c].ends, (0, -1), strict=True)}
@@ -247,7 +250,7 @@ def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], index:
         owner.update({v: key for v in path[1:-1]})
         along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(layout.vertices[path], axis=0), axis=1))])
         new[path] = points_at(piece, _placement(layout.vertices[path], piece, along, layout.side))
-    _relax(new, layout, moved_by, set(owner) | set(ends.values()) | layout.on_crease, index, region, home)
+    _relax(new, layout, moved_by, set(owner) | set(ends.values()) | on_crease, index, region, home)
     return new, moved_by, pieces
 
 
