@@ -206,7 +206,9 @@ def _pca_normals(points: np.ndarray, idx: np.ndarray, keep: np.ndarray | None = 
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Smallest-eigenvalue direction of each neighbourhood's covariance (n, 3), and the
     neighbours' RMS distance from that plane (n,). ``keep`` (n, k) bool: only those neighbours
-    count (a neighbourhood left with fewer than 3 keeps them all)."""
+    count; a neighbourhood left with fewer than a third of them keeps them all (a plane through three
+    points fits them exactly in any direction: at a part's corners the face refit kept three or four
+    and put planes through the corner at random, some facing inward)."""
     out = np.empty((len(points), 3))
     rms = np.empty(len(points))
     # Chunks keep the (chunk, k, 3) temporaries small for multi-million-point clouds.
@@ -215,7 +217,7 @@ def _pca_normals(points: np.ndarray, idx: np.ndarray, keep: np.ndarray | None = 
         sl = slice(start, start + step)
         nb = points[idx[sl]]
         w = np.ones(idx[sl].shape) if keep is None else keep[sl].astype(np.float64)
-        w[w.sum(axis=1) < 3] = 1.0
+        w[w.sum(axis=1) < max(3, idx.shape[1] // 3)] = 1.0
         count = w.sum(axis=1)
         nb = nb - (np.einsum("nk,nkj->nj", w, nb) / count[:, None])[:, None, :]
         cov = np.einsum("nk,nki,nkj->nij", w, nb, nb)
