@@ -16,7 +16,8 @@ from cam.params import ReconstructParams
 __all__ = ["PRESETS", "resolve_options"]
 
 # Keys: field ("grid" | "mlp"); grid_cells and levels (grid: finest cells along the longest side,
-# number of levels); width and depth (mlp); prior_k (neighbours blended by the grid's start);
+# number of levels); width and depth (mlp); prior_k (neighbours blended by the grid's start: 16 so that
+# at a corner every face around it has samples among them);
 # iterations, batch_size (cloud points per step; as many Gaussian samples plus 1/8 uniform ones);
 # learning_rate (mlp: Adam's step; grid: the step as a fraction of each level's cell);
 # lr_final_ratio and schedule ("cosine" to lr*ratio, or the paper's "step": halve every 2000);
@@ -24,7 +25,7 @@ __all__ = ["PRESETS", "resolve_options"]
 # (marching-cubes cells along the longest side).
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {
-        "field": "grid", "grid_cells": 192, "levels": 4, "width": None, "depth": None, "prior_k": 8,
+        "field": "grid", "grid_cells": 192, "levels": 4, "width": None, "depth": None, "prior_k": 16,
         "iterations": 50, "batch_size": 65536, "learning_rate": 0.02, "lr_final_ratio": 0.01,
         "schedule": "cosine", "sigma_k": 10, "resolution": 384,
     },

@@ -4,9 +4,17 @@ Starting IGR from a sphere spends most of a CPU budget moving the surface to
 the points; starting it from this estimate lets the IGR loss spend its
 iterations on what it is good at (sharp, distance-like fields through the
 points). The estimate is the distance to the nearest points' tangent planes,
-blended with Gaussian weights taken relative to the nearest point so that they
-never all underflow far from the cloud (where the sign is that of the nearest
-oriented sample, which is correct for a closed, densely sampled surface).
+blended with Gaussian weights of each point's distance beyond the nearest one's, so that
+they never all underflow far from the cloud.
+
+Two choices keep the sign right near a part's edges and corners, where the nearest points
+lie on two or three faces whose planes disagree. The weights are Gaussian in the distance,
+not in its square: in squared distance their width shrinks as spacing^2 / distance, so a
+few spacings out one point's plane decides alone, and beside a convex edge that point is
+as often on the other face (whose plane puts the query inside): the field grew lumps of
+1-4 mm out of the corners of a bracket scanned at 0.1 % noise. And each point counts by how
+squarely it faces the query (|plane distance| over distance, softened within the blending
+width): a face seen edge-on from the query says little about which side of the part it is.
 """
 
 from __future__ import annotations
@@ -41,7 +49,8 @@ def plane_distance(
     points, normals : ndarray, shape (n, 3), float64
         Samples and their unit outward normals.
     spacing : float
-        Typical sample spacing, the points' units; the blending width is twice this.
+        Typical sample spacing, the points' units; the blending width (in distance beyond the
+        nearest sample) is twice this, and so is the softening of the facing weight.
     k : int
         Nearest samples blended.
     workers : int
@@ -76,8 +85,9 @@ def plane_distance(
         found = np.isfinite(dist)
         idx = np.where(found, idx, 0)
         with np.errstate(invalid="ignore"):
-            w = np.where(found, np.exp(-(dist ** 2 - dist[:, :1] ** 2) / width2), 0.0)
             plane = np.einsum("mkj,mkj->mk", q[:, None, :] - points[idx], normals[idx])
+            facing = (np.abs(plane) + 2.0 * spacing) / (dist + 2.0 * spacing)
+            w = np.where(found, np.exp(-(dist - dist[:, :1]) ** 2 / width2) * facing, 0.0)
             out[start:start + step] = (w * plane).sum(axis=1) / w.sum(axis=1)
     return out
 
