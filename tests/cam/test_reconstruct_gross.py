@@ -137,7 +137,6 @@ def test_bracket_without_normals_has_no_spurious_sheet():
     assert hausdorff_share(result.vertices, result.faces, truth) <= BOUND
 
 
-
 def test_low_noise_bracket_has_no_lump_at_its_corners():
     """The same bracket at a tenth of a per cent of noise, the pipeline's own settings: the field used to
     bulge 4.3 mm out of the upright's convex corner (plane distances blended by squared distance, which
@@ -150,6 +149,7 @@ def test_low_noise_bracket_has_no_lump_at_its_corners():
     assert result.report["fidelity"]["ok"]
     assert genus(result.vertices, result.faces) == 1
     assert hausdorff_share(result.vertices, result.faces, truth) <= BOUND
+
 
 # --- the self-check ------------------------------------------------------------------------------
 

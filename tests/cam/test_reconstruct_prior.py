@@ -13,8 +13,6 @@ from scipy.spatial import cKDTree
 
 from cam.reconstruct.prior import plane_distance
 
-manifold3d = pytest.importorskip("manifold3d")
-
 
 def test_distance_to_a_sampled_plane_is_exact():
     g = np.arange(-10.0, 10.01, 0.25)
@@ -28,7 +26,7 @@ def test_distance_to_a_sampled_plane_is_exact():
 
 
 def _l_solid() -> trimesh.Trimesh:
-    from manifold3d import Manifold
+    Manifold = pytest.importorskip("manifold3d").Manifold
 
     m = (Manifold.cube([30.0, 20.0, 8.0]) + Manifold.cube([8.0, 20.0, 24.0])).to_mesh()
     return trimesh.Trimesh(np.asarray(m.vert_properties)[:, :3], np.asarray(m.tri_verts))
