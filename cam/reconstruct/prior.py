@@ -73,7 +73,7 @@ def plane_distance(
     tree = tree if tree is not None else cKDTree(points)
     k = int(min(k, len(points)))
     out = np.empty(len(queries))
-    width2 = (2.0 * spacing) ** 2
+    width = 2.0 * spacing
     step = 65_536  # about a second per chunk on a busy core, so a cancel is seen promptly
     for start in range(0, len(queries), step):
         if check_cancel is not None:
@@ -86,8 +86,8 @@ def plane_distance(
         idx = np.where(found, idx, 0)
         with np.errstate(invalid="ignore"):
             plane = np.einsum("mkj,mkj->mk", q[:, None, :] - points[idx], normals[idx])
-            facing = (np.abs(plane) + 2.0 * spacing) / (dist + 2.0 * spacing)
-            w = np.where(found, np.exp(-(dist - dist[:, :1]) ** 2 / width2) * facing, 0.0)
+            facing = (np.abs(plane) + width) / (dist + width)
+            w = np.where(found, np.exp(-(dist - dist[:, :1]) ** 2 / width ** 2) * facing, 0.0)
             out[start:start + step] = (w * plane).sum(axis=1) / w.sum(axis=1)
     return out
 
