@@ -2,7 +2,7 @@
 
 QuadriFlow runs in its own process because it can, on rare inputs, loop
 forever or crash inside C++; the parent (:mod:`cam.remesh.quadriflow`) kills it on a
-timeout. Run as ``python -m cam.remesh.child``. Exit status 0 = result
+timeout. Run as ``python -P cam/remesh/child.py`` (it imports nothing of the project). Exit status 0 = result
 written, 3 = QuadriFlow reported an error (message on stderr).
 """
 
