@@ -24,18 +24,19 @@ def _row_sets(rng, n=300):
     return sets
 
 
-def _dense_solution(sets, fixed, lam, cp, damping):
+def _dense_solution(sets, fixed, lam, cp, damping, knots=(KU, KV)):
     """min Σ w (e · S - t)² + lam c·H3c over the free points, assembled and solved densely."""
+    ku, kv = knots
     ncp = fixed.size
     M, rhs = np.zeros((3 * ncp, 3 * ncp)), np.zeros(3 * ncp)
     for (u, v, du), terms in sets:
-        B = surface_matrix(KU, KV, u, v, du=du).toarray()
+        B = surface_matrix(ku, kv, u, v, du=du).toarray()
         for i in range(3):
             rhs[i * ncp:(i + 1) * ncp] += B.T @ sum(w * e[:, i] * t for e, w, t in terms)
             for j in range(3):
                 M[i * ncp:(i + 1) * ncp, j * ncp:(j + 1) * ncp] += B.T @ (
                     sum(w * e[:, i] * e[:, j] for e, w, _ in terms)[:, None] * B)
-    H = thin_plate_matrix(KU, KV, length_u=30.0, length_v=20.0).toarray()
+    H = thin_plate_matrix(ku, kv, length_u=30.0, length_v=20.0).toarray()
     for i in range(3):
         M[i * ncp:(i + 1) * ncp, i * ncp:(i + 1) * ncp] += lam * H
     c = cp.reshape(-1, 3).T.ravel()
@@ -52,18 +53,21 @@ def _dense_solution(sets, fixed, lam, cp, damping):
 
 @pytest.mark.parametrize("border_fixed", [False, True])
 @pytest.mark.parametrize("damping", [0.0, 0.3])
-def test_solution_matches_the_dense_normal_equations(border_fixed, damping):
+@pytest.mark.parametrize("knots", [(KU, KV), (KV, KU)], ids=["more-u", "more-v"])
+def test_solution_matches_the_dense_normal_equations(border_fixed, damping, knots):
+    # Both ways round: the band order runs along the net's shorter side, whichever that is.
+    ku, kv = knots
     rng = np.random.default_rng(4)
-    nu, nv = KU.size - 4, KV.size - 4
+    nu, nv = ku.size - 4, kv.size - 4
     fixed = np.zeros((nu, nv), dtype=bool)
     if border_fixed:
         fixed[0], fixed[:, -1] = True, True
     cp = rng.normal(size=(nu, nv, 3))
     sets = _row_sets(rng)
-    rows = [(surface_rows(KU, KV, u, v, du=du), terms) for (u, v, du), terms in sets]
-    system = NormalEquations(KU, KV, fixed, lengths_mm=(30.0, 20.0), degree=(3, 3))
+    rows = [(surface_rows(ku, kv, u, v, du=du), terms) for (u, v, du), terms in sets]
+    system = NormalEquations(ku, kv, fixed, lengths_mm=(30.0, 20.0), degree=(3, 3))
     got = system.solve(rows, 0.05, cp, damping)
-    want = _dense_solution(sets, fixed, 0.05, cp, damping)
+    want = _dense_solution(sets, fixed, 0.05, cp, damping, knots)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
     np.testing.assert_array_equal(got[fixed], cp[fixed])
 
