@@ -89,7 +89,8 @@ def map_forked(fn: Callable[..., Any], n: int, *, processes: int = 1, check_canc
     multiprocessing does not let start children. A child whose parent is gone stops at its next index.
     A child runs BLAS in one thread: the processes are the parallelism, and BLAS threads on top of them
     wait on each other (fit's banded factorisations took three to five times as long, two processes of
-    two BLAS threads each on two cores); BLAS is exact either way, so results do not change.
+    two BLAS threads each on two cores). The serial run matches it where this process runs BLAS in one
+    thread too, as the workers and `cloud2cnc run` do by default (`CLOUD2CNC_BLAS_THREADS`).
 
     Parameters
     ----------
