@@ -29,8 +29,6 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from threadpoolctl import threadpool_limits
-
 __all__ = ["REPORT_INTERVAL_S", "CheckCancel", "GeometryError", "Progress", "map_forked", "progress_between", "progress_labelled"]
 
 #: progress(fraction in [0, 1], message or None)
@@ -87,10 +85,6 @@ def map_forked(fn: Callable[..., Any], n: int, *, processes: int = 1, check_canc
 
     Plain `os.fork` rather than `multiprocessing`: a Celery prefork child is a daemon process, which
     multiprocessing does not let start children. A child whose parent is gone stops at its next index.
-    A child runs BLAS in one thread: the processes are the parallelism, and BLAS threads on top of them
-    wait on each other (fit's banded factorisations took three to five times as long, two processes of
-    two BLAS threads each on two cores). The serial run matches it where this process runs BLAS in one
-    thread too, as the workers and `cloud2cnc run` do by default (`CLOUD2CNC_BLAS_THREADS`).
 
     Parameters
     ----------
@@ -235,7 +229,6 @@ def _fork_child(fn, siblings: list[int], item_progress: bool, report_s: float) -
     # leaves by os._exit, so that none of the parent's exit handlers run here.
     for fd in (task_w, result_r, *siblings):
         os.close(fd)
-    threadpool_limits(1, user_api="blas")
     status = 0
     try:
         with os.fdopen(task_r, "rb") as tasks, os.fdopen(result_w, "wb") as out:

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from cam import CheckCancel, GeometryError, Progress, map_forked, progress_labelled
 from cam.fit.borders import find_kinks, fit_boundary_curves, seed_bordered_net
@@ -153,47 +154,53 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
     samples' 1 (`cam.fit.solve.fit_surface`; 0: samples only).
     """
     V, grids = _check_inputs(vertices, grids, params)
-    report = progress or (lambda fraction, message=None: None)
-    cancel = check_cancel or (lambda: None)
-    problem = _prepare(V, grids, mesh_vertices, mesh_faces, params, other_quads=other_quads, sharp_edges=sharp_edges,
-                       kink_angle_deg=kink_angle_deg)
-    fit_opts = dict(tolerance_mm=params.tolerance_mm, max_refinements=params.max_refinements, min_span=min_span_quads,
-                    smoothing_mm2=params.smoothing_mm2, smoothing_floor=smoothing_floor, param_weight=param_weight,
-                    normal_weight_mm=params.normal_weight_mm, anchor_weight=anchor_weight,
-                    iterations=params.iterations, mesh=problem.index if mesh_weight > 0 else None,
-                    mesh_weight=mesh_weight, check_cancel=cancel)
-    each = _Each(processes=processes, report=report, cancel=cancel,
-                 sizes=np.bincount(problem.owner[problem.owner >= 0], minlength=len(problem.grids)))
-    free = _fit_free(problem, fit_opts, each)
-    # The constrained fits start from the first free fits, before refinement (and before samples
-    # moved: they refit from the top anyway): knot lines run across the whole patch, and the spans a
-    # free fit split for one border would free every row and column to follow the mesh's facets
-    # (ripples no tolerance sees, concave tighter than the ball). They refine themselves where they
-    # need it.
-    coarse = [f.unrefined for f in free]
-    free = _refit_moved(problem, free, fit_opts, each)
-    report(0.4, "fitting the shared boundary curves")
-    curves, curve_err = fit_boundary_curves(
-        problem.layout, problem.shape, [f.fit for f in free], problem.positions, problem.index, problem.creases,
-        problem.sharp, knot_spacing_quads=params.knot_spacing_quads, tolerance_mm=params.tolerance_mm,
-        max_refinements=params.max_refinements, min_span_quads=min_span_quads, kink_angle_deg=kink_angle_deg,
-        check_cancel=cancel)
-    final = _fit_bordered(problem, coarse, curves, fit_opts, each)
-    report(0.92, "measuring every mesh sample against the surfaces")
-    errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
-                           params.tolerance_mm, processes=processes, check_cancel=cancel,
-                           progress=progress_labelled(report, 0.92, 0.97,
-                                                      "measuring every mesh sample against the surfaces"))
-    report(0.97, "reporting each patch: its errors, folds and creases")
-    creases = problem.creases
-    if creases is None:
-        creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=params.crease_angle_deg)
-    patches = report_patches(final, samples=problem.samples, owner=problem.assignment.patch, errors=errors,
-                             shape=problem.shape, layout=problem.layout, index=problem.index, creases=creases,
-                             curve_errors=curve_err, tolerance_mm=params.tolerance_mm, check_cancel=cancel)
-    report(1.0, "fitted")
-    return FitResult(patches=patches, max_gap_mm=max_gap(patches, problem.layout, problem.shape), curves=len(curves),
-                     tolerance_mm=params.tolerance_mm)
+    # One BLAS thread for the whole fit, here and in the processes it forks: LAPACK splits the banded
+    # factorisations' sums along its threads, so the surfaces would depend on the process count (the serial
+    # run is the reference), and BLAS threads on top of the forked processes wait on each other (the
+    # factorisations took three to five times as long, two processes of two threads each on two cores).
+    with threadpool_limits(1, user_api="blas"):
+        report = progress or (lambda fraction, message=None: None)
+        cancel = check_cancel or (lambda: None)
+        problem = _prepare(V, grids, mesh_vertices, mesh_faces, params, other_quads=other_quads,
+                           sharp_edges=sharp_edges, kink_angle_deg=kink_angle_deg)
+        fit_opts = dict(tolerance_mm=params.tolerance_mm, max_refinements=params.max_refinements,
+                        min_span=min_span_quads, smoothing_mm2=params.smoothing_mm2, smoothing_floor=smoothing_floor,
+                        param_weight=param_weight,
+                        normal_weight_mm=params.normal_weight_mm, anchor_weight=anchor_weight,
+                        iterations=params.iterations, mesh=problem.index if mesh_weight > 0 else None,
+                        mesh_weight=mesh_weight, check_cancel=cancel)
+        each = _Each(processes=processes, report=report, cancel=cancel,
+                     sizes=np.bincount(problem.owner[problem.owner >= 0], minlength=len(problem.grids)))
+        free = _fit_free(problem, fit_opts, each)
+        # The constrained fits start from the first free fits, before refinement (and before samples
+        # moved: they refit from the top anyway): knot lines run across the whole patch, and the spans a
+        # free fit split for one border would free every row and column to follow the mesh's facets
+        # (ripples no tolerance sees, concave tighter than the ball). They refine themselves where they
+        # need it.
+        coarse = [f.unrefined for f in free]
+        free = _refit_moved(problem, free, fit_opts, each)
+        report(0.4, "fitting the shared boundary curves")
+        curves, curve_err = fit_boundary_curves(
+            problem.layout, problem.shape, [f.fit for f in free], problem.positions, problem.index, problem.creases,
+            problem.sharp, knot_spacing_quads=params.knot_spacing_quads, tolerance_mm=params.tolerance_mm,
+            max_refinements=params.max_refinements, min_span_quads=min_span_quads, kink_angle_deg=kink_angle_deg,
+            check_cancel=cancel)
+        final = _fit_bordered(problem, coarse, curves, fit_opts, each)
+        report(0.92, "measuring every mesh sample against the surfaces")
+        errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
+                               params.tolerance_mm, processes=processes, check_cancel=cancel,
+                               progress=progress_labelled(report, 0.92, 0.97,
+                                                          "measuring every mesh sample against the surfaces"))
+        report(0.97, "reporting each patch: its errors, folds and creases")
+        creases = problem.creases
+        if creases is None:
+            creases = mesh_creases(mesh_vertices, mesh_faces, angle_deg=params.crease_angle_deg)
+        patches = report_patches(final, samples=problem.samples, owner=problem.assignment.patch, errors=errors,
+                                 shape=problem.shape, layout=problem.layout, index=problem.index, creases=creases,
+                                 curve_errors=curve_err, tolerance_mm=params.tolerance_mm, check_cancel=cancel)
+        report(1.0, "fitted")
+        return FitResult(patches=patches, max_gap_mm=max_gap(patches, problem.layout, problem.shape),
+                         curves=len(curves), tolerance_mm=params.tolerance_mm)
 
 
 def _check_inputs(vertices: np.ndarray, grids: list[np.ndarray], params: FitParams

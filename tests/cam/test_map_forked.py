@@ -32,20 +32,6 @@ def test_the_children_are_other_processes_and_see_the_callers_state():
     assert [v for _, v in out] == [0, 1, 2, 3] and all(pid != seen["parent"] for pid, _ in out)
 
 
-def test_the_children_run_blas_in_one_thread_and_leave_the_callers_alone():
-    # The processes are the parallelism: BLAS threads on top of them wait on each other.
-    from threadpoolctl import threadpool_info, threadpool_limits
-
-    def blas_threads(k, cc):
-        return sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
-
-    with threadpool_limits(2, user_api="blas"):
-        here = blas_threads(0, None)
-        out = map_forked(blas_threads, 2, processes=2)
-        assert blas_threads(0, None) == here
-    assert out == [[1], [1]]
-
-
 def test_progress_reaches_one():
     shares = []
     map_forked(_work, 5, processes=2, progress=lambda f, m=None: shares.append(f))
