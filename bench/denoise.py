@@ -410,8 +410,8 @@ def notes(rows: list[dict]) -> list[str]:
          + "; ".join(f"{r['mesh']} {r['ours_mesh']:.2f} vs {r['two_step_mesh']:.2f}"
                      + (f" ({r['folded']['after_repair']} faces stay folded)" if r['folded']['after_repair'] > 20
                         else "") for r in rows if r["mesh"] in CAD_NOISE)
-         + ". The thin parts fold most: abc5 is a plate under 3 mm thick, about five mean edge lengths, so noise of "
-         "0.3 of an edge along the normals brings its two faces' vertices close to each other."),
+         + ". abc5, a plate under 3 mm thick with narrow grooves across it, keeps the most faces folded (along the "
+         "grooves' edges in the worst-three picture); why was not looked into."),
         "",
         (f"Time: ours / two-step {min(r_two):.0f}-{max(r_two):.0f} x, ours / bilateral "
          f"{min(r_bil):.1f}-{max(r_bil):.1f} x, ours / before {min(r_before):.2f}-{max(r_before):.2f} x "
