@@ -30,29 +30,37 @@ class CSR:
 
 
 @njit(cache=True, inline="always")
-def _row(indptr, indices, data, x, i, c):
-    s = 0.0
+def _row3(indptr, indices, data, x, i):
+    # Row i of a CSR product with x (cols, 3): the three components' sums in one pass over the row, each from
+    # zero in stored order (scipy's `csr_matvecs`).
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
     for jj in range(indptr[i], indptr[i + 1]):
-        s += data[jj] * x[indices[jj], c]
-    return s
+        k, d = indices[jj], data[jj]
+        s0 += d * x[k, 0]
+        s1 += d * x[k, 1]
+        s2 += d * x[k, 2]
+    return s0, s1, s2
 
 
 @njit(cache=True, parallel=True)
 def _matvec(indptr, indices, data, x, out):
     for i in prange(out.shape[0]):
-        for c in range(out.shape[1]):
-            out[i, c] = _row(indptr, indices, data, x, i, c)
+        out[i, 0], out[i, 1], out[i, 2] = _row3(indptr, indices, data, x, i)
 
 
 @njit(cache=True, parallel=True)
 def _normal_rhs(g_ptr, g_idx, g_val, dt_ptr, dt_idx, dt_val, G, P, lamP, fid, r1, t, out):
     # t = r1 (Gam G + P) + lamP on the edges, then out = fid + (D^T L) t on the faces.
     for e in prange(t.shape[0]):
-        for c in range(3):
-            t[e, c] = r1 * (_row(g_ptr, g_idx, g_val, G, e, c) + P[e, c]) + lamP[e, c]
+        g0, g1, g2 = _row3(g_ptr, g_idx, g_val, G, e)
+        t[e, 0] = r1 * (g0 + P[e, 0]) + lamP[e, 0]
+        t[e, 1] = r1 * (g1 + P[e, 1]) + lamP[e, 1]
+        t[e, 2] = r1 * (g2 + P[e, 2]) + lamP[e, 2]
     for f in prange(out.shape[0]):
-        for c in range(3):
-            out[f, c] = fid[f, c] + _row(dt_ptr, dt_idx, dt_val, t, f, c)
+        d0, d1, d2 = _row3(dt_ptr, dt_idx, dt_val, t, f)
+        out[f, 0], out[f, 1], out[f, 2] = fid[f, 0] + d0, fid[f, 1] + d1, fid[f, 2] + d2
 
 
 @njit(cache=True, parallel=True)
@@ -62,19 +70,19 @@ def _jump_rhs(gt_ptr, gt_idx, gt_val, lt_ptr, lt_idx, lt_val, DN, P, lamP, W, r1
         for c in range(3):
             a[e, c] = r1 * (DN[e, c] - P[e, c]) - lamP[e, c]
     for i in prange(out.shape[0]):
-        for c in range(3):
-            out[i, c] = _row(gt_ptr, gt_idx, gt_val, a, i, c) + _row(lt_ptr, lt_idx, lt_val, W, i, c)
+        a0, a1, a2 = _row3(gt_ptr, gt_idx, gt_val, a, i)
+        w0, w1, w2 = _row3(lt_ptr, lt_idx, lt_val, W, i)
+        out[i, 0], out[i, 1], out[i, 2] = a0 + w0, a1 + w1, a2 + w2
 
 
 @njit(cache=True, parallel=True)
 def _residual_jumps(g_ptr, g_idx, g_val, l_ptr, l_idx, l_val, G, DN, AX1, AX0):
     # AX1 = D N - Gam G (edges), AX0 = Lam G (edge x axis rows).
     for e in prange(AX1.shape[0]):
-        for c in range(3):
-            AX1[e, c] = DN[e, c] - _row(g_ptr, g_idx, g_val, G, e, c)
+        g0, g1, g2 = _row3(g_ptr, g_idx, g_val, G, e)
+        AX1[e, 0], AX1[e, 1], AX1[e, 2] = DN[e, 0] - g0, DN[e, 1] - g1, DN[e, 2] - g2
     for i in prange(AX0.shape[0]):
-        for c in range(3):
-            AX0[i, c] = _row(l_ptr, l_idx, l_val, G, i, c)
+        AX0[i, 0], AX0[i, 1], AX0[i, 2] = _row3(l_ptr, l_idx, l_val, G, i)
 
 
 @njit(cache=True, inline="always")
