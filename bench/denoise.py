@@ -97,12 +97,13 @@ CAD_NOISE = {
 }
 #: Target edge length of the even remeshing, percent of the part's bounding-box diagonal.
 CAD_EDGE_PERCENT = 1.0
-for _name, (_part, _kind, _share, _seed) in CAD_NOISE.items():
-    CORPUS[_name] = ("held out", (
-        f"{_part} ({'the ABC part, scaled to 60 mm' if _part.startswith('abc') else 'a CSG part'} of "
+CORPUS.update({
+    name: ("held out", (
+        f"{part} ({'the ABC part, scaled to 60 mm' if part.startswith('abc') else 'a CSG part'} of "
         f"bench/reconstruct.py), remeshed evenly (edges {CAD_EDGE_PERCENT:g} % of the diagonal, creases over 30 "
-        f"deg kept) + Gaussian {_share} mean edge lengths "
-        f"{'along the normals' if _kind == 'n' else 'on every coordinate'} (seed {_seed})"))
+        f"deg kept) + Gaussian {share} mean edge lengths "
+        f"{'along the normals' if kind == 'n' else 'on every coordinate'} (seed {seed})"))
+    for name, (part, kind, share, seed) in CAD_NOISE.items()})
 
 
 def face_normals(v, f):

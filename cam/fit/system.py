@@ -117,9 +117,10 @@ class NormalEquations:
         self.src, self.h = np.concatenate(src)[order], np.concatenate(h)[order]
         self.indices = rows[order].astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=3 * nf))]).astype(np.int32)
-        self.diagonal = np.flatnonzero(self.indices == np.repeat(np.arange(3 * nf), np.diff(self.indptr)))
+        col_of = np.repeat(np.arange(3 * nf), np.diff(self.indptr))  # each stored entry's column
+        self.diagonal = np.flatnonzero(self.indices == col_of)
         self.band_at, self.band_width, self.band_src, self.band_dest = _band_layout(
-            fixed.shape, free, self.indices, np.repeat(np.arange(3 * nf), np.diff(self.indptr)))
+            fixed.shape, free, self.indices, col_of)
         self.rows_x, self.src_x = np.concatenate(rows_x), np.concatenate(src_x)
         self.h_x, self.value_x = np.concatenate(h_x), np.concatenate(value_x)
 
@@ -255,8 +256,7 @@ def _band_layout(shape: tuple[int, int], free: np.ndarray, rows: np.ndarray, col
     """
     nu, nv = shape
     nf = free.size
-    i, j = free // nv, free % nv
-    key = i * nv + j if nv <= nu else j * nu + i
+    key = free if nv <= nu else (free % nv) * nu + free // nv  # row by row along the shorter side
     rank = np.empty(nf, dtype=np.int64)
     rank[np.argsort(key, kind="stable")] = np.arange(nf)
     at = 3 * np.tile(rank, 3) + np.repeat(np.arange(3), nf)
