@@ -61,7 +61,7 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("cloud.ply",),
         outputs=("mesh_raw.ply",),
         param_groups=("reconstruct",),
-        settings=("blas_threads",),
+        settings=("blas_threads", "stage_processes"),
         time_limit_s=1800.0,
         faster="a lower reconstruct.resolution or reconstruct.iterations, or the `fast` reconstruct.preset",
     ),

@@ -22,6 +22,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from cam.reconstruct._gridkernel import cell_weights, interpolate, scatter_gradient
+
 __all__ = ["GridField", "IGRNetwork"]
 
 # Corner offsets of a cell, in the order the interpolation weights are built.
@@ -111,7 +113,16 @@ def _trilinear_weights(x: torch.Tensor, lo: torch.Tensor, h: float, dims: np.nda
 
     The weights depend on x only, so they are built outside autograd; the gradient
     column for axis a swaps that axis's factor (1-t, t) for its derivative (-1, 1)/h.
+    On the CPU in float32 a compiled kernel builds them (`cam.reconstruct._gridkernel`, the same bits).
     """
+    if _compiled(x):
+        idx, weights = cell_weights(x.detach().numpy(), lo.numpy(), h, dims, with_grad)
+        return torch.from_numpy(idx), torch.from_numpy(weights)
+    return _torch_weights(x, lo, h, dims, with_grad)
+
+
+def _torch_weights(x: torch.Tensor, lo: torch.Tensor, h: float, dims: np.ndarray, with_grad: bool):
+    """`_trilinear_weights` as torch operations (any device and dtype)."""
     with torch.no_grad():
         u = (x - lo) / h
         top = torch.as_tensor(dims - 2, device=x.device)
@@ -134,6 +145,11 @@ def _trilinear_weights(x: torch.Tensor, lo: torch.Tensor, h: float, dims: np.nda
         return idx, torch.stack([value, gx, gy, gz], dim=2)
 
 
+def _compiled(t: torch.Tensor) -> bool:
+    """Whether the compiled kernels serve this tensor's level: float32 on the CPU."""
+    return t.device.type == "cpu" and t.dtype == torch.float32
+
+
 class _Interpolate(torch.autograd.Function):
     """(values, idx, weights) -> (B, k) = sum over the 8 corners of values[idx] * weights.
 
@@ -143,14 +159,19 @@ class _Interpolate(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, values, idx, weights):
-        vals = values.index_select(0, idx).view(weights.shape[0], 8, 1)
         ctx.save_for_backward(idx, weights)
         ctx.size = values.shape[0]
+        if _compiled(values):
+            return torch.from_numpy(interpolate(values.detach().numpy(), idx.numpy(), weights.numpy()))
+        vals = values.index_select(0, idx).view(weights.shape[0], 8, 1)
         return (vals * weights).sum(dim=1)
 
     @staticmethod
     def backward(ctx, grad_out):
         idx, weights = ctx.saved_tensors
+        if _compiled(grad_out):
+            grad = scatter_gradient(idx.numpy(), weights.numpy(), grad_out.detach().numpy(), ctx.size)
+            return torch.from_numpy(grad), None, None
         per_corner = (weights * grad_out[:, None, :]).sum(dim=2).reshape(-1)
         # index_add_ on CPU accumulates in index order, so the result is the same run to run.
         grad = torch.zeros(ctx.size, dtype=grad_out.dtype, device=grad_out.device)

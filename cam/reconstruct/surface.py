@@ -64,6 +64,7 @@ def reconstruct_surface(
     params: ReconstructParams = ReconstructParams(),
     *,
     threads: int | None = None,
+    workers: int | None = None,
     device: str = "auto",
     progress: Progress | None = None,
     check_cancel: CheckCancel | None = None,
@@ -103,7 +104,10 @@ def reconstruct_surface(
         this only changes how its zero set is meshed. False: plain marching cubes.
         ``seed``: the same seed gives the same mesh on CPU.
     threads : int, optional
-        Torch and k-NN threads; None keeps torch's setting.
+        Torch threads (and k-NN threads unless ``workers`` is given); None keeps torch's setting.
+    workers : int, optional
+        Threads of the k-nearest-neighbour queries (each query's answer is the same with any number);
+        None: ``threads``.
     device : {"auto", "cpu", "cuda"}
         ``"auto"``: CUDA when available.
     progress : callable, optional
@@ -153,7 +157,7 @@ def reconstruct_surface(
     dev = _torch_device(device)
     pts = _check_points(points)
     nrm = check_normals(normals, len(pts)) if normals is not None else None
-    workers = threads or 1
+    workers = workers or threads or 1
     centre, scale, unit = _normalise(pts)
 
     with _timed(timings, "normals"):

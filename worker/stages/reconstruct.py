@@ -6,6 +6,7 @@ from pathlib import Path
 
 from cam.io import read_ply, write_ply_mesh
 from cam.reconstruct import reconstruct_surface
+from core.config import stage_processes
 from worker.context import StageContext, StageError, StageSkipped
 
 
@@ -17,11 +18,14 @@ def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
     if cloud.faces is not None:
         raise StageError("cloud.ply holds a mesh, not a point cloud; mesh uploads skip reconstruct")
     threads = ctx.settings.get("blas_threads") or 1
+    # Torch keeps the BLAS thread count (its sums would split along more threads); the k-NN queries,
+    # each answered alike by any thread, use the stage's processors.
+    workers = stage_processes(ctx.settings.get("stage_processes"))
     # The core reports its own fractions of the stage (training 0.05..0.9, extraction after);
     # a GeometryError (too few points, a flat cloud, a mesh that strays from its cloud, ...) reaches
     # the user as it is: a wrong part must not go on to be machined.
     result = reconstruct_surface(cloud.points, cloud.normals, ctx.params.reconstruct, threads=int(threads),
-                                 progress=ctx.progress, check_cancel=ctx.check_cancel)
+                                 workers=workers, progress=ctx.progress, check_cancel=ctx.check_cancel)
     ctx.check_cancel()
     report = result.report
     comments = [
