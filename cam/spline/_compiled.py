@@ -17,7 +17,7 @@ from numba import njit
 
 from cam.mesh._compiled import dot3, norm3
 
-__all__ = ["evaluate_net", "newton_feet", "project_in_boxes"]
+__all__ = ["design_rows", "evaluate_net", "newton_feet", "project_in_boxes"]
 
 
 @njit(cache=True)
@@ -158,6 +158,52 @@ def evaluate_net(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.nd
     _evaluate_net(np.ascontiguousarray(knots_u, dtype=np.float64), np.ascontiguousarray(knots_v, dtype=np.float64),
                   cp, int(degree[0]), int(degree[1]), u, v, order, values)
     return {_PAIRS[k]: values[k] for k in range(count)}
+
+
+@njit(cache=True, nogil=True)
+def _design_rows(ku, kv, p, q, u, v, du, dv, nv, cols, vals):
+    work = _work(p, q)
+    bu, bv, table, left, right, scratch = work
+    for n in range(u.size):
+        su = _basis(ku, p, u[n], du, bu, table, left, right, scratch)
+        sv = _basis(kv, q, v[n], dv, bv, table, left, right, scratch)
+        for a in range(p + 1):
+            for b in range(q + 1):
+                cols[n, a * (q + 1) + b] = (su - p + a) * nv + (sv - q + b)
+                vals[n, a * (q + 1) + b] = bu[du, a] * bv[dv, b]
+
+
+def design_rows(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.ndarray, degree: tuple[int, int],
+                du: int, dv: int) -> tuple[np.ndarray, np.ndarray]:
+    """`basis.surface_rows` for derivative orders du, dv of at most 2 (and at most the degrees).
+
+    Parameters
+    ----------
+    knots_u, knots_v : ndarray, shape (nu + p + 1,), (nv + q + 1,), float64
+        Clamped knot vectors, parameter units.
+    u, v : ndarray, shape (n,), float64
+        Parameters.
+    degree : tuple of int
+        (p, q).
+    du, dv : int
+        Derivative orders, 0..min(2, p) and 0..min(2, q).
+
+    Returns
+    -------
+    cols : ndarray, shape (n, (p + 1)(q + 1)), int64
+        Column indices i * nv + j.
+    vals : ndarray, shape (n, (p + 1)(q + 1)), float64
+        Products of the basis functions' derivatives, bit for bit those of `basis.surface_rows`.
+    """
+    p, q = int(degree[0]), int(degree[1])
+    ku = np.ascontiguousarray(knots_u, dtype=np.float64)
+    kv = np.ascontiguousarray(knots_v, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64).ravel()
+    v = np.ascontiguousarray(v, dtype=np.float64).ravel()
+    m = (p + 1) * (q + 1)
+    cols, vals = np.empty((u.size, m), dtype=np.int64), np.empty((u.size, m))
+    _design_rows(ku, kv, p, q, u, v, int(du), int(dv), kv.size - q - 1, cols, vals)
+    return cols, vals
 
 
 @njit(cache=True)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from cam.spline._compiled import evaluate_net
+from cam.spline._compiled import design_rows, evaluate_net
 
 __all__ = ["find_spans", "basis_functions", "curve_matrix", "surface_rows", "surface_matrix", "evaluate_curve",
            "evaluate_surface", "span_params", "gram_matrix", "thin_plate_matrix"]
@@ -193,6 +193,8 @@ def surface_rows(knots_u: np.ndarray, knots_v: np.ndarray, u: np.ndarray, v: np.
         If `du` is not in 0..p or `dv` is not in 0..q.
     """
     p, q = degree
+    if 0 <= du <= min(p, 2) and 0 <= dv <= min(q, 2):
+        return design_rows(knots_u, knots_v, u, v, degree, du, dv)  # compiled, the same bits
     ku = np.asarray(knots_u, dtype=np.float64)
     kv = np.asarray(knots_v, dtype=np.float64)
     nv = kv.size - q - 1

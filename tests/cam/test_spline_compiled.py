@@ -9,7 +9,7 @@ import pytest
 from cam.fit.foot import project_points
 from cam.spline import basis
 from cam.spline._compiled import newton_feet, project_in_boxes
-from cam.spline.basis import evaluate_surface
+from cam.spline.basis import evaluate_surface, surface_rows
 from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
 
@@ -137,6 +137,35 @@ def test_compiled_evaluation_is_bit_for_bit_that_of_numpy(case, order):
     assert sorted(got) == sorted(want)
     for key in want:
         np.testing.assert_array_equal(got[key], want[key])
+
+
+def numpy_surface_rows(ku, kv, u, v, degree, du, dv):
+    """The vectorised design-matrix rows the kernel replaced (as `surface_rows` returns them)."""
+    p, q = degree
+    su, bu = basis.basis_functions(ku, p, u, derivative=du)
+    sv, bv = basis.basis_functions(kv, q, v, derivative=dv)
+    n, m = su.size, (p + 1) * (q + 1)
+    iu = su[:, None] - p + np.arange(p + 1)[None, :]
+    iv = sv[:, None] - q + np.arange(q + 1)[None, :]
+    cols = (iu[:, :, None] * (kv.size - q - 1) + iv[:, None, :]).reshape(n, m)
+    return cols, (bu[:, :, None] * bv[:, None, :]).reshape(n, m)
+
+
+@pytest.mark.parametrize("case", range(4))
+def test_compiled_design_rows_are_bit_for_bit_those_of_numpy(case):
+    ku, kv, _, degree = list(_cases())[case]
+    rng = np.random.default_rng(case)
+    u = np.concatenate([rng.uniform(ku[0] - 0.1, ku[-1] + 0.1, 500), np.unique(ku), [np.nan]])
+    v = np.concatenate([rng.uniform(kv[0] - 0.1, kv[-1] + 0.1, 500), np.unique(kv)[:1].repeat(np.unique(ku).size),
+                        [0.5]])
+    for du in range(min(degree[0], 2) + 1):
+        for dv in range(min(degree[1], 2) + 1):
+            want = numpy_surface_rows(ku, kv, u, v, degree, du, dv)
+            got = surface_rows(ku, kv, u, v, degree=degree, du=du, dv=dv)
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+    with pytest.raises(ValueError, match="derivative"):
+        surface_rows(ku, kv, u, v, degree=degree, du=degree[0] + 1)
 
 
 @pytest.mark.parametrize("case", range(4))
