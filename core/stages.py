@@ -71,6 +71,7 @@ STAGES: tuple[StageSpec, ...] = (
         inputs=("mesh_raw.ply",),
         outputs=("mesh.ply", "denoise.json"),
         param_groups=("denoise",),
+        settings=("stage_processes",),
         time_limit_s=1800.0,
         faster="fewer denoise.max_iterations, or denoise.enabled = false for a clean mesh",
     ),

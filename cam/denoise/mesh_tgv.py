@@ -55,6 +55,7 @@ def denoise_mesh(
     *,
     progress: Progress | None = None,
     check_cancel: CheckCancel | None = None,
+    processes: int = 1,
 ) -> DenoiseResult:
     """Denoise a triangle mesh with MeshTGV normal filtering and the iterative vertex update.
 
@@ -96,6 +97,9 @@ def denoise_mesh(
     check_cancel : callable, optional
         Called once before the filter, once per outer iteration and once per vertex iteration; it
         stops the work by raising (the exception passes through untouched).
+    processes : int
+        Processors the filter may use (`cam.denoise.tgv.tgv_filter_normals`); the result is the same
+        with any number.
 
     Returns
     -------
@@ -125,7 +129,8 @@ def denoise_mesh(
     check_cancel()
     auto = weights_for_noise(noise)
     alpha0, alpha1 = _weights_used(params, auto, weight_scale)
-    tgv = _filter_normals(frame, topo, params, alpha0, alpha1, progress=progress, check_cancel=check_cancel)
+    tgv = _filter_normals(frame, topo, params, alpha0, alpha1, progress=progress, check_cancel=check_cancel,
+                          processes=processes)
     t_vu = time.perf_counter()
     x_new, flips_before, flips_after = update_vertices(frame.x, frame.faces, tgv.normals, params.vertex_iterations,
                                                        params.flip_repair_rounds, check_cancel=check_cancel)
@@ -235,7 +240,7 @@ def _noise_weight_scale(median_dihedral_deg: float, noise_reference_deg: float) 
 
 
 def _filter_normals(frame: _Frame, topo: FaceTopology, params: DenoiseParams, alpha0: float, alpha1: float, *,
-                    progress: Progress | None, check_cancel: CheckCancel) -> TGVResult:
+                    progress: Progress | None, check_cancel: CheckCancel, processes: int) -> TGVResult:
     def on_iteration(k: int, rel: float) -> None:
         if progress is not None:
             progress(0.9 * k / (params.max_iterations + 1),
@@ -246,7 +251,7 @@ def _filter_normals(frame: _Frame, topo: FaceTopology, params: DenoiseParams, al
         alpha0=alpha0, alpha1=alpha1,
         r0=params.penalty0, r1=params.penalty1,
         max_iterations=params.max_iterations, tolerance=params.tolerance,
-        on_iteration=on_iteration, check_cancel=check_cancel,
+        on_iteration=on_iteration, check_cancel=check_cancel, processes=processes,
     )
 
 

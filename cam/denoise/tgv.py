@@ -31,7 +31,7 @@ Lagrangian with penalties r1, r0 (inner products weighted by edge length). Each 
     4. multipliers <- multipliers + r (split variable - operator);
 until the relative change of N is below the tolerance. The two system matrices never change: each
 is factored once (SuperLU, scipy.sparse.linalg.splu) and solved for the three normal components
-at once.
+at once (with two processors, the third in a forked child: `cam.denoise.columns`).
 
 Inconsistently oriented neighbours are compared with a sign flip; edges with more than two faces are
 treated like boundary edges (no coupling across them).
@@ -57,6 +57,7 @@ from cam.denoise._tgvkernel import (
     normal_rhs,
     residual_jumps,
 )
+from cam.denoise.columns import solves_in_two
 
 __all__ = ["FaceTopology", "TGVResult", "face_topology", "tgv_filter_normals"]
 
@@ -146,6 +147,7 @@ def tgv_filter_normals(
     tolerance: float,
     on_iteration: Callable[[int, float], None] | None = None,
     check_cancel: CheckCancel | None = None,
+    processes: int = 1,
 ) -> TGVResult:
     """Filter the face normals of a triangle mesh with MeshTGV.
 
@@ -170,6 +172,9 @@ def tgv_filter_normals(
         ``on_iteration(k, relative_change)``, called after outer iteration k.
     check_cancel : callable, optional
         Called after each outer iteration, before ``on_iteration``; it stops the work by raising.
+    processes : int
+        Processors to use: with 2 or more, each solve's last component runs in a forked child
+        (`cam.denoise.columns`); the normals are bit for bit those of one.
 
     Returns
     -------
@@ -185,9 +190,10 @@ def tgv_filter_normals(
     t_setup = time.perf_counter()
     lu_n, lu_g = _factor(split.KN), _factor(split.KG)
     t_factor = time.perf_counter()
-    normals, k, rel, converged = _iterate(split, lu_n.solve, lu_g.solve, alpha0=alpha0, alpha1=alpha1, r0=r0, r1=r1,
-                                          max_iterations=max_iterations, tolerance=tolerance,
-                                          on_iteration=on_iteration, check_cancel=check_cancel)
+    with solves_in_two([lu_n, lu_g], processes=processes) as (solve_n, solve_g):
+        normals, k, rel, converged = _iterate(split, solve_n, solve_g, alpha0=alpha0, alpha1=alpha1, r0=r0, r1=r1,
+                                              max_iterations=max_iterations, tolerance=tolerance,
+                                              on_iteration=on_iteration, check_cancel=check_cancel)
     t_end = time.perf_counter()
     return TGVResult(
         normals=normals[inv],

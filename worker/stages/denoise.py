@@ -8,6 +8,7 @@ from pathlib import Path
 from cam import GeometryError
 from cam.denoise import denoise_mesh, measure_shift
 from cam.io import read_ply, write_json, write_ply_mesh
+from core.config import stage_processes
 from worker.context import StageContext, StageError, StageSkipped
 
 
@@ -26,7 +27,8 @@ def run_denoise(ctx: StageContext) -> dict[str, Path]:
     if mesh.faces is None or not len(mesh.faces):
         raise StageError("mesh_raw.ply has no faces; denoise needs a triangle mesh")
     try:
-        result = denoise_mesh(mesh.points, mesh.faces, params, progress=ctx.progress, check_cancel=ctx.check_cancel)
+        result = denoise_mesh(mesh.points, mesh.faces, params, progress=ctx.progress, check_cancel=ctx.check_cancel,
+                              processes=stage_processes(ctx.settings.get("stage_processes")))
     except GeometryError as exc:
         # The core's message describes the mesh; the user needs to know which file it means.
         raise StageError(f"cannot denoise mesh_raw.ply: {exc}") from exc
