@@ -98,12 +98,67 @@ _PAIRS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
 
 
 @njit(cache=True)
+def _second_order_terms(cp, bu, bv, iu0, iv0, p, q, out):
+    """out[:6] for order 2 (p, q ≥ 2): each entry `_term`'s sum with `_term`'s operations, six of them side by
+    side per coordinate (independent chains instead of one after another)."""
+    for k in range(cp.shape[2]):
+        a0 = a1 = a2 = a3 = a4 = a5 = 0.0
+        for i in range(p + 1):
+            for j in range(q + 1):
+                c = cp[iu0 + i, iv0 + j, k]
+                a0 = (bu[0, i] * bv[0, j]) * c + a0
+                a1 = (bu[1, i] * bv[0, j]) * c + a1
+                a2 = (bu[0, i] * bv[1, j]) * c + a2
+                a3 = (bu[2, i] * bv[0, j]) * c + a3
+                a4 = (bu[1, i] * bv[1, j]) * c + a4
+                a5 = (bu[0, i] * bv[2, j]) * c + a5
+        out[0, k], out[1, k], out[2, k] = a0 + 0.0, a1 + 0.0, a2 + 0.0
+        out[3, k], out[4, k], out[5, k] = a3 + 0.0, a4 + 0.0, a5 + 0.0
+
+
+@njit(cache=True)
+def _first_order_terms(cp, bu, bv, iu0, iv0, p, q, out):
+    """out[:3] for order 1 (p, q ≥ 1), as `_second_order_terms` does out[:6]."""
+    for k in range(cp.shape[2]):
+        a0 = a1 = a2 = 0.0
+        for i in range(p + 1):
+            for j in range(q + 1):
+                c = cp[iu0 + i, iv0 + j, k]
+                a0 = (bu[0, i] * bv[0, j]) * c + a0
+                a1 = (bu[1, i] * bv[0, j]) * c + a1
+                a2 = (bu[0, i] * bv[1, j]) * c + a2
+        out[0, k], out[1, k], out[2, k] = a0 + 0.0, a1 + 0.0, a2 + 0.0
+
+
+@njit(cache=True)
+def _point_terms(cp, bu, bv, iu0, iv0, p, q, out):
+    """out[0] (order 0) of a net in three coordinates, the three sums side by side."""
+    a0 = a1 = a2 = 0.0
+    for i in range(p + 1):
+        for j in range(q + 1):
+            w = bu[0, i] * bv[0, j]
+            a0 = w * cp[iu0 + i, iv0 + j, 0] + a0
+            a1 = w * cp[iu0 + i, iv0 + j, 1] + a1
+            a2 = w * cp[iu0 + i, iv0 + j, 2] + a2
+    out[0, 0], out[0, 1], out[0, 2] = a0 + 0.0, a1 + 0.0, a2 + 0.0
+
+
+@njit(cache=True)
 def _evaluate(ku, kv, cp, p, q, u, v, order, out, work):
     """S and its partials up to total `order` (≤ 2) at (u, v): out[k, coordinate] for _PAIRS[k]; a pair
     beyond the degrees is zero. `work` holds the scratch arrays."""
     bu, bv, table, left, right, scratch = work
     su = _basis(ku, p, u, order, bu, table, left, right, scratch)
     sv = _basis(kv, q, v, order, bv, table, left, right, scratch)
+    if order >= 2 and p >= 2 and q >= 2:
+        _second_order_terms(cp, bu, bv, su - p, sv - q, p, q, out)
+        return
+    if order == 1 and p >= 1 and q >= 1:
+        _first_order_terms(cp, bu, bv, su - p, sv - q, p, q, out)
+        return
+    if order == 0 and cp.shape[2] == 3:
+        _point_terms(cp, bu, bv, su - p, sv - q, p, q, out)
+        return
     for n in range(6 if order >= 2 else (3 if order == 1 else 1)):
         a, b = _PAIRS[n]
         for k in range(cp.shape[2]):
