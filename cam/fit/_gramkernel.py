@@ -40,27 +40,37 @@ def _accumulate(cols, vals, weights, order, p, q, band):
     n, m = cols.shape
     pairs = weights.shape[1]
     width = 2 * q + 1
-    cell = np.zeros((m, m, pairs))  # the current knot cell's block, summed here and added to the band once
-    for t in range(n + 1):
-        r = order[t] if t < n else -1
-        if t > 0 and (r < 0 or cols[r, 0] != cols[order[t - 1], 0]):
-            last = order[t - 1]
+    # One knot cell's rows at a time, gathered: each entry of the cell's block summed over them from zero in
+    # row order, then added to the band once.
+    rows_v = np.empty((n, m))
+    rows_w = np.empty((n, pairs))
+    product = np.empty(n)
+    first = 0
+    while first < n:
+        last = first
+        while last + 1 < n and cols[order[last + 1], 0] == cols[order[first], 0]:
+            last += 1
+        count = last - first + 1
+        for t in range(count):
+            r = order[first + t]
             for a in range(m):
-                ia, ja = a // (q + 1), a % (q + 1)
-                c = cols[last, a]
-                for b in range(a, m):
-                    slot = (b // (q + 1) - ia + p) * width + (b % (q + 1) - ja + q)
-                    for k in range(pairs):
-                        band[c, slot, k] += cell[a, b, k]
-                        cell[a, b, k] = 0.0
-        if r < 0:
-            break
+                rows_v[t, a] = vals[r, a]
+            for k in range(pairs):
+                rows_w[t, k] = weights[r, k]
+        head = order[first]
         for a in range(m):
-            va = vals[r, a]
+            ia, ja = a // (q + 1), a % (q + 1)
+            c = cols[head, a]
             for b in range(a, m):  # columns grow with the position: b ≥ a is the upper triangle
-                product = va * vals[r, b]
+                slot = (b // (q + 1) - ia + p) * width + (b % (q + 1) - ja + q)
+                for t in range(count):
+                    product[t] = rows_v[t, a] * rows_v[t, b]
                 for k in range(pairs):
-                    cell[a, b, k] += weights[r, k] * product
+                    acc = 0.0
+                    for t in range(count):
+                        acc += rows_w[t, k] * product[t]
+                    band[c, slot, k] += acc
+        first = last + 1
 
 
 def accumulate_grams(cols: np.ndarray, vals: np.ndarray, weights: np.ndarray, degree: tuple[int, int],

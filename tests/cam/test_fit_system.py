@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cam.fit._gramkernel import accumulate_grams, band_slot
 from cam.fit.system import NormalEquations
 from cam.spline.basis import surface_matrix, surface_rows, thin_plate_matrix
 from cam.spline.surface import clamped_uniform_knots
@@ -96,3 +97,27 @@ def test_one_system_solves_many_times_alike():
     first = system.solve(dense, 0.05, cp)
     system.solve(sparse, 0.0, cp)  # few rows, no bending: most pairs of the pattern stay zero
     np.testing.assert_array_equal(system.solve(dense, 0.05, cp), first)
+
+
+def test_gram_blocks_sum_each_cells_rows_in_order_to_the_bit():
+    """`accumulate_grams` against plain loops: per knot cell (rows in stable order of their first column),
+    each entry summed from zero row by row, then added to the band."""
+    rng = np.random.default_rng(4)
+    u, v = rng.uniform(0, 1, 400), rng.uniform(0, 1, 400)
+    cols, vals = surface_rows(KU, KV, u, v)
+    weights = rng.normal(size=(400, 6))
+    band = np.zeros(((KU.size - 4) * (KV.size - 4), 49, 6))
+    accumulate_grams(cols, vals, weights, (3, 3), band)
+    want = np.zeros_like(band)
+    order = np.argsort(cols[:, 0], kind="stable")
+    for cell in np.unique(cols[:, 0]):
+        rows = order[cols[order, 0] == cell]
+        for a in range(16):
+            for b in range(a, 16):
+                slot = int(band_slot(b // 4 - a // 4, b % 4 - a % 4, (3, 3)))
+                for k in range(6):
+                    acc = 0.0
+                    for r in rows:
+                        acc += weights[r, k] * (vals[r, a] * vals[r, b])
+                    want[cols[rows[0], a], slot, k] += acc
+    np.testing.assert_array_equal(band, want)
