@@ -17,7 +17,7 @@ from numba import njit
 
 from cam.mesh._compiled import dot3, norm3
 
-__all__ = ["design_rows", "evaluate_net", "newton_feet", "project_in_boxes"]
+__all__ = ["design_rows", "evaluate_net", "newton_feet", "project_in_boxes", "window_boxes"]
 
 
 @njit(cache=True)
@@ -512,3 +512,43 @@ def box_bounds(points: np.ndarray, key: np.ndarray, lo: np.ndarray, hi: np.ndarr
                 np.ascontiguousarray(key, dtype=np.int64).ravel(), np.ascontiguousarray(lo, dtype=np.float64),
                 np.ascontiguousarray(hi, dtype=np.float64), np.ascontiguousarray(starts, dtype=np.int64), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _window_boxes(cp, p, q, lo, hi):
+    for i in range(lo.shape[0]):
+        for j in range(lo.shape[1]):
+            for k in range(cp.shape[2]):
+                small = large = cp[i, j, k]
+                for a in range(p + 1):
+                    for b in range(q + 1):
+                        x = cp[i + a, j + b, k]
+                        # as np.min and np.max: a NaN anywhere is the answer
+                        if not math.isnan(small) and (math.isnan(x) or x < small):
+                            small = x
+                        if not math.isnan(large) and (math.isnan(x) or x > large):
+                            large = x
+                lo[i, j, k], hi[i, j, k] = small, large
+
+
+def window_boxes(control_points: np.ndarray, degree: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Per window of (p + 1) x (q + 1) control points, their box: `pieces.span_boxes`' lo and hi.
+
+    Parameters
+    ----------
+    control_points : ndarray, shape (nu, nv, d), float64
+        The control net.
+    degree : tuple of int
+        (p, q).
+
+    Returns
+    -------
+    lo, hi : ndarray, shape (nu - p, nv - q, d), float64
+        Each window's smallest and largest coordinates (NaN where it holds one, as numpy's).
+    """
+    p, q = int(degree[0]), int(degree[1])
+    cp = np.ascontiguousarray(control_points, dtype=np.float64)
+    shape = (cp.shape[0] - p, cp.shape[1] - q, cp.shape[2])
+    lo, hi = np.empty(shape), np.empty(shape)
+    _window_boxes(cp, p, q, lo, hi)
+    return lo, hi

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.spline._compiled import box_bounds
+from cam.spline._compiled import box_bounds, window_boxes
 
 __all__ = ["PieceBoxes", "c0_knots", "c0_pieces", "foot_in_pieces", "make_piece_boxes", "span_boxes"]
 
@@ -128,10 +128,9 @@ def span_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndar
     ku, kv = np.asarray(knots_u, dtype=np.float64), np.asarray(knots_v, dtype=np.float64)
     cp = np.asarray(control_points, dtype=np.float64)
     nu, nv = cp.shape[:2]
-    nets = np.lib.stride_tricks.sliding_window_view(cp, (p + 1, q + 1), axis=(0, 1))  # (nu-p, nv-q, 3, p+1, q+1)
     su = np.flatnonzero(ku[p:nu] < ku[p + 1:nu + 1])
     sv = np.flatnonzero(kv[q:nv] < kv[q + 1:nv + 1])
-    return su, sv, nets.min(axis=(3, 4)), nets.max(axis=(3, 4))
+    return su, sv, *window_boxes(cp, degree)
 
 
 def make_piece_boxes(knots_u: np.ndarray, knots_v: np.ndarray, control_points: np.ndarray,

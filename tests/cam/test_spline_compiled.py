@@ -8,7 +8,7 @@ import pytest
 
 from cam.fit.foot import project_points
 from cam.spline import basis
-from cam.spline._compiled import newton_feet, project_in_boxes
+from cam.spline._compiled import newton_feet, project_in_boxes, window_boxes
 from cam.spline.basis import evaluate_surface, surface_rows
 from cam.spline.surface import clamped_uniform_knots, make_bspline_surface
 
@@ -312,3 +312,14 @@ def test_box_bounds_are_bit_for_bit_those_of_numpy():
     got = box_bounds(points, key, lo, hi, starts)
     np.testing.assert_array_equal(got, numpy_box_bounds(points, key, lo, hi, starts))
     assert np.all(np.isinf(got[key == 1])) and np.isfinite(got[key != 1]).all()
+
+
+@pytest.mark.parametrize("case", range(4))
+def test_window_boxes_are_numpys_min_and_max(case):
+    _, _, cp, degree = list(_cases())[case]
+    cp = cp.copy()
+    cp[1, 1, 0] = np.nan  # numpy's answer for every window holding it
+    nets = np.lib.stride_tricks.sliding_window_view(cp, (degree[0] + 1, degree[1] + 1), axis=(0, 1))
+    lo, hi = window_boxes(cp, degree)
+    np.testing.assert_array_equal(lo, nets.min(axis=(3, 4)))
+    np.testing.assert_array_equal(hi, nets.max(axis=(3, 4)))
