@@ -30,6 +30,7 @@ from cam.denoise.noise import estimate_noise
 from cam.denoise.tgv import FaceTopology, TGVResult, face_topology, tgv_filter_normals
 from cam.denoise.vertices import fill_degenerate_normals, unit_rows, update_vertices
 from cam.denoise.weights import Weights, weights_for_noise
+from cam.mesh.rows import unique_pairs
 from cam.params import DenoiseParams
 
 __all__ = ["DenoiseResult", "denoise_mesh"]
@@ -333,7 +334,7 @@ def _mean_edge_length(v: np.ndarray, f: np.ndarray) -> float:
     if len(f) == 0:
         return 0.0
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = unique_pairs(np.sort(e, axis=1))
     length = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
     length = length[length > 0]
     return float(length.mean()) if len(length) else 0.0

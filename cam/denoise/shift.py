@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cam.mesh.closest import closest_points, mesh_index
+from cam.mesh.rows import unique_pairs
 
 __all__ = ["MAX_SHIFT_OF_DIAGONAL", "MAX_VOLUME_CHANGE", "Shift", "measure_shift"]
 
@@ -64,7 +65,7 @@ def _volume(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 def _closed(faces: np.ndarray) -> bool:
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    _, counts = unique_pairs(edges, return_counts=True)
     return bool(np.all(counts == 2))
 
 

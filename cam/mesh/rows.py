@@ -1,10 +1,11 @@
-"""Exact duplicate rows in large arrays, fast enough for ten-million-point clouds."""
+"""Exact duplicate rows in large arrays, fast enough for ten-million-point clouds; distinct index pairs
+(a mesh's edges) by one integer key each."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["first_occurrences"]
+__all__ = ["first_occurrences", "unique_pairs"]
 
 
 def first_occurrences(rows: np.ndarray, *, inverse: bool = False):
@@ -45,6 +46,36 @@ def first_occurrences(rows: np.ndarray, *, inverse: bool = False):
     rank = np.empty(len(order), dtype=np.int64)
     rank[order] = np.arange(len(order))
     return first[order], rank[group]
+
+
+def unique_pairs(pairs: np.ndarray, *, return_counts: bool = False):
+    """`np.unique(pairs, axis=0)` for pairs of non-negative integers (edges as vertex-index pairs).
+
+    One int64 key per pair instead of `axis=0`'s sort of rows: several times faster on a mesh's edges, the
+    same rows in the same (lexicographic) order.
+
+    Parameters
+    ----------
+    pairs : (n, 2) ndarray of int
+        Non-negative integers.
+    return_counts : bool, optional
+        Also return how often each distinct pair occurs (default False).
+
+    Returns
+    -------
+    unique : (u, 2) int64
+        The distinct pairs, sorted by the first element, then the second.
+    counts : (u,) int64
+        Only with ``return_counts``.
+    """
+    pairs = np.asarray(pairs).astype(np.int64, copy=False).reshape(-1, 2)
+    base = int(pairs.max(initial=-1)) + 1
+    if len(pairs) and (int(pairs.min()) < 0 or base > 3_037_000_499):  # the key a * base + b would not fit
+        return np.unique(pairs, axis=0, return_counts=return_counts)
+    keys = np.unique(pairs[:, 0] * base + pairs[:, 1], return_counts=return_counts)
+    key = keys[0] if return_counts else keys
+    unique = np.stack(np.divmod(key, max(base, 1)), axis=1)
+    return (unique, keys[1]) if return_counts else unique
 
 
 def _groups(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
