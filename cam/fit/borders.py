@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cam import CheckCancel
+from cam import CheckCancel, map_forked
 from cam.fit.boundary import SIDES, CurveSpec, Layout, Piece, side_params
 from cam.fit.crease import sharp_edge_mask, snap_points
 from cam.fit.curve import CurveFit, fit_curve
@@ -37,7 +37,7 @@ __all__ = ["find_kinks", "fit_boundary_curves", "seed_bordered_net"]
 def fit_boundary_curves(layout: Layout, shape: list[tuple[int, int]], free: list[SurfaceFit], positions: np.ndarray,
                         index: MeshIndex, creases: Creases | None, sharp: set[tuple[int, int]], *,
                         knot_spacing_quads: float, tolerance_mm: float, max_refinements: int, min_span_quads: float,
-                        kink_angle_deg: float, check_cancel: CheckCancel | None = None
+                        kink_angle_deg: float, processes: int = 1, check_cancel: CheckCancel | None = None
                         ) -> tuple[list[CurveFit], list[float]]:
     """Fit each boundary curve once, through its junction points, to half the patches' tolerance.
 
@@ -73,8 +73,11 @@ def fit_boundary_curves(layout: Layout, shape: list[tuple[int, int]], free: list
         ...down to this many quads.
     kink_angle_deg : float
         Turns sharper than this, degrees, are C0 joins.
+    processes : int
+        Curves fitted at once, in forked processes (`cam.map_forked`); the curves are bit for bit those
+        of one process.
     check_cancel : callable or None
-        Called before each curve; it raises to stop the fit.
+        Called before each curve (while the processes work, every half second); it raises to stop the fit.
 
     Returns
     -------
@@ -85,16 +88,16 @@ def fit_boundary_curves(layout: Layout, shape: list[tuple[int, int]], free: list
     """
     ends = {spec.vertices[0] for spec in layout.curves} | {spec.vertices[-1] for spec in layout.curves}
     samples = _border_samples(layout, shape, free)
-    fits, errs = [], []
-    for c, spec in enumerate(layout.curves):
-        if check_cancel is not None:
-            check_cancel()
-        fits.append(_fit_boundary_curve(spec, samples[c], ends, positions, index, creases, sharp,
-                                        knot_spacing_quads=knot_spacing_quads, tolerance_mm=tolerance_mm,
-                                        max_refinements=max_refinements, min_span_quads=min_span_quads,
-                                        kink_angle_deg=kink_angle_deg))
-        errs.append(fits[-1].max_error)
-    return fits, errs
+
+    def fit_one(c: int, _cancel: CheckCancel) -> CurveFit:
+        return _fit_boundary_curve(layout.curves[c], samples[c], ends, positions, index, creases, sharp,
+                                   knot_spacing_quads=knot_spacing_quads, tolerance_mm=tolerance_mm,
+                                   max_refinements=max_refinements, min_span_quads=min_span_quads,
+                                   kink_angle_deg=kink_angle_deg)
+
+    # Each curve is fitted on its own data: in `processes` forked processes, the same curves as one after another.
+    fits = map_forked(fit_one, len(layout.curves), processes=processes, check_cancel=check_cancel)
+    return fits, [f.max_error for f in fits]
 
 
 def _border_samples(layout: Layout, shape, free: list[SurfaceFit]) -> list[list[tuple[np.ndarray, np.ndarray]]]:

@@ -184,7 +184,7 @@ def _fit_patches(vertices: np.ndarray, grids: list[np.ndarray], mesh_vertices: n
             problem.layout, problem.shape, [f.fit for f in free], problem.positions, problem.index, problem.creases,
             problem.sharp, knot_spacing_quads=params.knot_spacing_quads, tolerance_mm=params.tolerance_mm,
             max_refinements=params.max_refinements, min_span_quads=min_span_quads, kink_angle_deg=kink_angle_deg,
-            check_cancel=cancel)
+            processes=processes, check_cancel=cancel)
         final = _fit_bordered(problem, coarse, curves, fit_opts, each)
         report(0.92, "measuring every mesh sample against the surfaces")
         errors = sample_errors(problem.samples, problem.assignment.patch, [f.fit for f in final], problem.layout,
@@ -341,7 +341,8 @@ def _refit_moved(problem: _Problem, free: list[Refined], fit_opts: dict, each: _
     unrefined fits, never sees: on the 50k-point Fandisk cloud a fifth of the stage's time, for the same
     surfaces within tolerance)."""
     moved = sorted(_reassign(problem.points, problem.owner, problem.u, problem.v, [f.fit for f in free],
-                             problem.layout, fit_opts["tolerance_mm"], check_cancel=each.cancel,
+                             problem.layout, fit_opts["tolerance_mm"], processes=each.processes,
+                             check_cancel=each.cancel,
                              progress=progress_labelled(each.report, 0.33, 0.35, "moving samples beyond a border "
                                                         "to a neighbour that is closer")))
     refits = each.map(lambda k, cc, pr: _fit_free_patch(problem, k, free[k].fit, {**fit_opts, "max_refinements": 0,
@@ -397,25 +398,24 @@ def _thin(owner: np.ndarray, grids: list[np.ndarray], per_quad: float | None) ->
     return use
 
 
-def _reassign(P, owner, su, sv, fits, layout: Layout, tolerance_mm: float, *,
+def _reassign(P, owner, su, sv, fits, layout: Layout, tolerance_mm: float, *, processes: int = 1,
               check_cancel: CheckCancel | None = None, progress: Progress | None = None) -> set[int]:
     """Move samples that lie beyond their patch's border to a neighbour that is closer; returns changed patches.
 
     P float64 (n, 3) mm; owner int (n,) patch per sample, su, sv float64 (n,) its parameters (quads):
-    all three updated in place for the samples that move.
+    all three updated in place for the samples that move. Each patch's moves are found from the samples it
+    owned before any moved, so the patches are searched in `processes` forked processes and the moves
+    applied in patch order, as one process would.
     """
-    changed: set[int] = set()
-    before = owner.copy()  # the fits' sample order; moves are applied to `owner` as they are found
-    for k, fit in enumerate(fits):
-        if check_cancel is not None:
-            check_cancel()
-        if progress is not None:
-            progress(k / len(fits), f"patch {k + 1} of {len(fits)}")
+    before = owner.copy()  # the fits' sample order
+
+    def moves(k: int, _cancel: CheckCancel) -> tuple[np.ndarray, ...] | None:
+        fit = fits[k]
         idx = np.flatnonzero(before == k)
         far = fit.clamped[: idx.size] & (fit.distance[: idx.size] > 0.5 * tolerance_mm)
         cand = idx[far]
         if not cand.size or not layout.neighbours[k]:
-            continue
+            return None
         best_d = fit.distance[: idx.size][far].copy()
         best = np.full(cand.size, k)
         best_u, best_v = su[cand].copy(), sv[cand].copy()
@@ -426,10 +426,14 @@ def _reassign(P, owner, su, sv, fits, layout: Layout, tolerance_mm: float, *,
             best_d, best = np.where(better, d, best_d), np.where(better, nb, best)
             best_u, best_v = np.where(better, u, best_u), np.where(better, v, best_v)
         moved = best != k
-        if moved.any():
-            changed.add(k)
-            changed.update(int(x) for x in np.unique(best[moved]))
-            owner[cand[moved]] = best[moved]
-            su[cand[moved]], sv[cand[moved]] = best_u[moved], best_v[moved]
-    return changed
+        return (cand[moved], best[moved], best_u[moved], best_v[moved]) if moved.any() else None
 
+    changed: set[int] = set()
+    for k, found in enumerate(map_forked(moves, len(fits), processes=processes, check_cancel=check_cancel,
+                                         progress=progress)):
+        if found is not None:
+            rows, to, u, v = found
+            changed.add(k)
+            changed.update(int(x) for x in np.unique(to))
+            owner[rows], su[rows], sv[rows] = to, u, v
+    return changed
