@@ -23,6 +23,7 @@ from scipy.sparse.csgraph import connected_components
 
 from cam import CheckCancel, GeometryError, Progress
 from cam.mesh.closest import MeshIndex, mesh_index
+from cam.mesh.rows import unique_pairs
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads, hausdorff_to_mesh
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
@@ -233,8 +234,8 @@ def _check_manifold(tris: np.ndarray) -> None:
     one that two triangles run the same way (their orientations disagree). QuadriFlow takes such a mesh
     without complaint and makes a layout of the wrong surface."""
     directed = np.stack([tris, np.roll(tris, -1, axis=1)], axis=2).reshape(-1, 2)
-    _, shared = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
-    _, same_way = np.unique(directed, axis=0, return_counts=True)
+    _, shared = unique_pairs(np.sort(directed, axis=1), return_counts=True)
+    _, same_way = unique_pairs(directed, return_counts=True)
     crowded, flipped = int((shared > 2).sum()), int((same_way > 1).sum())
     if crowded or flipped:
         raise GeometryError(f"the mesh is not a manifold surface: {crowded} edge(s) shared by more than two "
