@@ -117,20 +117,6 @@ def _second_order_terms(cp, bu, bv, iu0, iv0, p, q, out):
 
 
 @njit(cache=True)
-def _first_order_terms(cp, bu, bv, iu0, iv0, p, q, out):
-    """out[:3] for order 1 (p, q ≥ 1), as `_second_order_terms` does out[:6]."""
-    for k in range(cp.shape[2]):
-        a0 = a1 = a2 = 0.0
-        for i in range(p + 1):
-            for j in range(q + 1):
-                c = cp[iu0 + i, iv0 + j, k]
-                a0 = (bu[0, i] * bv[0, j]) * c + a0
-                a1 = (bu[1, i] * bv[0, j]) * c + a1
-                a2 = (bu[0, i] * bv[1, j]) * c + a2
-        out[0, k], out[1, k], out[2, k] = a0 + 0.0, a1 + 0.0, a2 + 0.0
-
-
-@njit(cache=True)
 def _point_terms(cp, bu, bv, iu0, iv0, p, q, out):
     """out[0] (order 0) of a net in three coordinates, the three sums side by side."""
     a0 = a1 = a2 = 0.0
@@ -152,9 +138,6 @@ def _evaluate(ku, kv, cp, p, q, u, v, order, out, work):
     sv = _basis(kv, q, v, order, bv, table, left, right, scratch)
     if order >= 2 and p >= 2 and q >= 2:
         _second_order_terms(cp, bu, bv, su - p, sv - q, p, q, out)
-        return
-    if order == 1 and p >= 1 and q >= 1:
-        _first_order_terms(cp, bu, bv, su - p, sv - q, p, q, out)
         return
     if order == 0 and cp.shape[2] == 3:
         _point_terms(cp, bu, bv, su - p, sv - q, p, q, out)
