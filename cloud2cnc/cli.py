@@ -1,4 +1,4 @@
-"""The `cloud2cnc` command: serve, worker, run, openapi.
+"""The `cloud2cnc` command: serve, worker, run, warm-up, openapi.
 
 Each command imports what it needs when it runs, so `serve` does not load the
 geometry stack and `run` does not load the web stack.
@@ -89,7 +89,13 @@ def cmd_worker(args: argparse.Namespace) -> int:
             return 2
         follow_parent(args.parent_pid)  # before Celery forks its pool, so the pool is in our group
     os.environ["CLOUD2CNC_CONCURRENCY"] = str(args.concurrency)
-    _settings(args.data_dir)
+    settings = _settings(args.data_dir)
+    if settings.warm_up:
+        from core.config import set_thread_limits
+        from worker.warmup import run_warm_up
+
+        set_thread_limits(settings)  # inherited by the warm-up's process, as by the pool's
+        run_warm_up()
     from worker.celery_app import app
 
     argv = ["worker", "--loglevel", args.log_level.upper(), "--concurrency", str(args.concurrency),
@@ -121,6 +127,15 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"cloud2cnc run: {exc}", file=sys.stderr)
         return 2
     return 0 if reports and all(r.status in ("succeeded", "skipped") for r in reports) else 1
+
+
+def cmd_warm_up(args: argparse.Namespace) -> int:
+    from core.config import set_thread_limits
+
+    set_thread_limits(_settings())  # as a worker does, before numpy loads
+    from worker.warmup import main
+
+    return main(["--force"] if args.force else [])
 
 
 def cmd_openapi(args: argparse.Namespace) -> int:
@@ -161,6 +176,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override one parameter")
     p.add_argument("--until", help="last stage to run")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("warm-up", help="compile the geometry kernels now (a worker does it before it takes work)")
+    p.add_argument("--force", action="store_true", help="even where this code's kernels are compiled already")
+    p.set_defaults(func=cmd_warm_up)
 
     p = sub.add_parser("openapi", help="write the OpenAPI schema")
     p.add_argument("--output", default="openapi/openapi.json")

@@ -106,6 +106,12 @@ class Settings(BaseSettings):
         validation_alias=AliasChoices("CLOUD2CNC_STAGE_PLUGINS", "stage_plugins"),
         description="Comma-separated modules whose STAGES are appended to the pipeline (tests use it).",
     )
+    warm_up: bool = Field(
+        default=True,
+        validation_alias=AliasChoices("CLOUD2CNC_WARM_UP", "warm_up"),
+        description="A worker compiles the geometry kernels before it takes work (`worker.warmup`): about a "
+                    "minute on two cores the first time this code runs on a machine, under a second after.",
+    )
     pipeline: str = Field(
         default="",
         validation_alias=AliasChoices("CLOUD2CNC_PIPELINE", "pipeline"),
