@@ -40,10 +40,10 @@ _TIMEOUT_S = 600.0
 
 @dataclass(frozen=True)
 class WarmupReport:
-    """What :func:`warm_kernels` did: `skipped` (the stamp was there), the seconds it took and each stage's
-    status; `stamp` is the stamp's path."""
+    """What :func:`warm_kernels` did: why it ran no job (`skipped`; None: it ran one), the seconds it took and
+    each stage's status; `stamp` is the stamp's path."""
 
-    skipped: bool
+    skipped: str | None
     seconds: float
     stages: dict[str, str]
     stamp: Path
@@ -110,13 +110,13 @@ def _dome(rng, n, radius, centre_z, height):
 
 def warm_stages(settings: Settings) -> list[str]:
     """The built-in stages the warm-up runs for `settings`' pipeline: DESIGN's order up to the last built-in stage
-    the pipeline runs (a pipeline without `reconstruct` still needs a mesh; `ingest` alone compiles nothing)."""
+    the pipeline runs (a pipeline without `reconstruct` still needs a mesh), none where that is `ingest`."""
     from core.stages import STAGES, load_stages
 
     built_in = [s.name for s in STAGES]
     configured = {s.name for s in load_stages(settings.stage_plugins, settings.pipeline)}
     last = max((built_in.index(n) for n in configured if n in built_in), default=-1)
-    return built_in[:last + 1]
+    return built_in[:last + 1] if last > 0 else []  # ingest alone compiles nothing
 
 
 def stamp_path(stages: list[str]) -> Path:
@@ -157,7 +157,8 @@ def warm_kernels(settings: Settings, *, force: bool = False) -> WarmupReport:
     stages = warm_stages(settings)
     stamp = stamp_path(stages)
     if not stages or stamp.exists() and not force:
-        return WarmupReport(True, time.perf_counter() - t0, {}, stamp)
+        why = f"{stamp.name} is there" if stages else "the pipeline runs ingest alone"
+        return WarmupReport(why, time.perf_counter() - t0, {}, stamp)
     cloud = make_warmup_cloud(np.random.default_rng(0))
     with tempfile.TemporaryDirectory(prefix="cloud2cnc-warmup-") as tmp:
         upload = Path(tmp) / "warmup.xyz"
@@ -174,7 +175,7 @@ def warm_kernels(settings: Settings, *, force: bool = False) -> WarmupReport:
     if len(statuses) == len(stages) and all(status in ("succeeded", "skipped") for status in statuses.values()):
         stamp.parent.mkdir(parents=True, exist_ok=True)
         stamp.write_text(f"{','.join(stages)}\n")
-    return WarmupReport(False, time.perf_counter() - t0, statuses, stamp)
+    return WarmupReport(None, time.perf_counter() - t0, statuses, stamp)
 
 
 def _call_data_dependent() -> None:
@@ -224,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         follow_parent(args.parent_pid)
     report = warm_kernels(Settings(), force=args.force)
     if report.skipped:
-        print(f"cloud2cnc warm-up: nothing to compile ({report.stamp.name} is there)", file=sys.stderr)
+        print(f"cloud2cnc warm-up: nothing to compile ({report.skipped})", file=sys.stderr)
         return 0
     failed = {name: status for name, status in report.stages.items() if status not in ("succeeded", "skipped")}
     print(f"cloud2cnc warm-up: compiled the kernels in {report.seconds:.1f} s"
