@@ -1,8 +1,8 @@
 """Compile the geometry kernels before the first job, not during it.
 
 `cam`'s compiled loops (numba, ``cache=True``) are compiled the first time a process calls them and kept
-in numba's cache on disk: about 40 s of the README example's first run on two cores (67 s against 26 s
-once cached), 20 s of it in `denoise`. A worker therefore runs :func:`warm_kernels` in a child process
+in numba's cache on disk: about 39 s of the README example's first run on two cores (64.4 s against 25.4 s
+once cached, bench/results/warmup.md), half of it in `denoise`. A worker therefore runs :func:`warm_kernels` in a child process
 before it takes work: a small job of the pipeline's own stages on a block with a dome made here, which
 calls every kernel with the argument types a real job passes, so numba compiles and stores them all. Its
 pool's processes then load the kernels from the cache. A stamp beside numba's cache says the work is done
@@ -34,7 +34,8 @@ _PARAMS = {"tool": {"radius_mm": 3.0}, "reconstruct": {"max_faces": 8000, "itera
            "denoise": {"max_iterations": 10}, "remesh": {"target_faces": 800, "candidates": 1},
            "fit": {"max_refinements": 0}, "toolpath": {"scallop_height_mm": 0.3}}
 _POINTS = 1500
-# Eight times the cold warm-up (70 s on a two-core AMD EPYC); past it the worker starts and its first jobs compile the rest.
+# Over ten times the warm-up on an empty cache (51 s on a two-core AMD EPYC); past it the worker starts all the
+# same and its first jobs compile what is left.
 _TIMEOUT_S = 600.0
 
 
