@@ -84,7 +84,8 @@ def denoise_mesh(
         it is from vertex to vertex). A weight given by hand is used as given.
         penalty0, penalty1: augmented-Lagrangian penalties of the two split variables (same units
         as alpha0, alpha1). They fix the linear systems, which are factored once.
-        vertex_iterations: iterations of the vertex update.
+        vertex_iterations: iterations of the vertex update. None (default): chosen with the weights
+        (:func:`cam.denoise.weights.weights_for_noise`: 20 for white noise, up to 300 for correlated).
         flip_repair_rounds: rounds of the folded-face repair after the update (0: paper's update only).
         max_iterations: cap on the outer iterations of the normal filter.
         tolerance: stop when |N_k - N_{k-1}| / |N_{k-1}| (Frobenius norms) falls below it.
@@ -133,7 +134,8 @@ def denoise_mesh(
     tgv = _filter_normals(frame, topo, params, alpha0, alpha1, progress=progress, check_cancel=check_cancel,
                           processes=processes)
     t_vu = time.perf_counter()
-    x_new, flips_before, flips_after = update_vertices(frame.x, frame.faces, tgv.normals, params.vertex_iterations,
+    iterations = auto.vertex_iterations if params.vertex_iterations is None else params.vertex_iterations
+    x_new, flips_before, flips_after = update_vertices(frame.x, frame.faces, tgv.normals, iterations,
                                                        params.flip_repair_rounds, check_cancel=check_cancel)
     t_vu_end = time.perf_counter()
     face_normals, no_normal = _all_face_normals(tgv.normals, f_in, frame)
@@ -230,6 +232,8 @@ def _weights_report(params: DenoiseParams, auto: Weights, alpha0: float, alpha1:
         "alpha1": alpha1,
         "alpha0_from": "noise" if params.alpha0 is None else "parameter",
         "alpha1_from": "noise" if params.alpha1 is None else "parameter",
+        "vertex_iterations": auto.vertex_iterations if params.vertex_iterations is None else params.vertex_iterations,
+        "vertex_iterations_from": "noise" if params.vertex_iterations is None else "parameter",
         "for_the_noise": auto.as_report(),
     }
 

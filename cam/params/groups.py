@@ -67,7 +67,9 @@ class DenoiseParams(_Group):
                                  "None: chosen from the measured noise, like alpha0.")
     penalty0: float = Field(2.0, gt=0, le=1000, description="Augmented-Lagrangian penalty of the second-order split.")
     penalty1: float = Field(2.0, gt=0, le=1000, description="Augmented-Lagrangian penalty of the first-order split.")
-    vertex_iterations: int = Field(20, ge=0, le=1000, description="Iterations of the vertex update.")
+    vertex_iterations: int | None = Field(None, ge=0, le=1000, description="Iterations of the vertex update. None: "
+                                          "20, up to 300 where the measured noise is correlated from vertex to vertex "
+                                          "(a scanner's), chosen with the weights.")
     flip_repair_rounds: int = Field(5, ge=0, le=100, description="Rounds that undo faces flipped by the update.")
     max_iterations: int = Field(100, ge=1, le=10000, description="Outer iterations of the normal filter.")
     tolerance: float = Field(1e-5, ge=0, le=1, description="Stop when the relative change of the normals is below this.")

@@ -220,6 +220,19 @@ def test_weights_follow_the_noise():
     assert (w.alpha0, w.alpha1, w.correlated_share) == (0.6, 1.0, 1.0)
 
 
+def test_vertex_iterations_follow_how_correlated_the_noise_is():
+    # white noise at any level: the paper's 20
+    for sigma in (0.0, 0.05, 0.22, 0.7):
+        assert weights_for_noise(_noise(sigma)).vertex_iterations == 20
+    # correlated at the Kinect scan's level: 300; halfway up the correlation ramp, halfway between
+    assert weights_for_noise(_noise(0.072, 1.36)).vertex_iterations == 300
+    assert weights_for_noise(_noise(0.072, 1.25)).vertex_iterations == 160
+    # weaker correlated noise: fewer, as its weights (a reconstruction's slight ripple stays near 20)
+    iterations = [weights_for_noise(_noise(s, 1.5)).vertex_iterations for s in (0.0, 0.005, 0.02, 0.05, 0.07)]
+    assert all(b >= a for a, b in itertools.pairwise(iterations))
+    assert iterations[0] == 20 and iterations[1] < 40 and iterations[-1] == 300
+
+
 def test_weights_reject_a_bad_estimate():
     with pytest.raises(ValueError, match="sigma=-0.1"):
         weights_for_noise(_noise(-0.1))
@@ -269,3 +282,22 @@ def test_unset_weights_come_from_the_noise(noisy_sphere, monkeypatch):
     res = denoise_mesh(v, f, DenoiseParams(alpha1=0.5, max_iterations=5))
     assert seen == {"alpha0": res.report["weights"]["for_the_noise"]["alpha0"], "alpha1": 0.5}
     assert (res.report["weights"]["alpha0_from"], res.report["weights"]["alpha1_from"]) == ("noise", "parameter")
+
+
+def test_vertex_iterations_by_hand_or_from_the_noise(noisy_sphere, monkeypatch):
+    v, f = noisy_sphere
+    seen = []
+    real = mesh_tgv.update_vertices
+
+    def spy(x, faces, normals, iterations, repair_rounds, **kwargs):
+        seen.append(iterations)
+        return real(x, faces, normals, iterations, repair_rounds, **kwargs)
+
+    monkeypatch.setattr(mesh_tgv, "update_vertices", spy)
+    res = denoise_mesh(v, f, DenoiseParams(max_iterations=5))
+    w = res.report["weights"]
+    assert seen == [w["vertex_iterations"]] == [w["for_the_noise"]["vertex_iterations"]] == [20]  # white noise
+    assert w["vertex_iterations_from"] == "noise"
+    res = denoise_mesh(v, f, DenoiseParams(max_iterations=5, vertex_iterations=7))
+    assert seen[-1] == res.report["weights"]["vertex_iterations"] == 7
+    assert res.report["weights"]["vertex_iterations_from"] == "parameter"

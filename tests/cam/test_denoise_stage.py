@@ -114,7 +114,7 @@ FILTER_BOUNDS: dict[str, tuple[float | None, float, float, bool]] = {
     "alpha1": (None, 0.0, 100.0, False),
     "penalty0": (2.0, 0.0, 1000.0, False),
     "penalty1": (2.0, 0.0, 1000.0, False),
-    "vertex_iterations": (20, 0, 1000, True),
+    "vertex_iterations": (None, 0, 1000, True),  # None: chosen with the weights
     "flip_repair_rounds": (5, 0, 100, True),
     "max_iterations": (100, 1, 10000, True),
     "tolerance": (1e-5, 0.0, 1.0, True),
