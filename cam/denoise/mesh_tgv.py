@@ -134,7 +134,7 @@ def denoise_mesh(
     tgv = _filter_normals(frame, topo, params, alpha0, alpha1, progress=progress, check_cancel=check_cancel,
                           processes=processes)
     t_vu = time.perf_counter()
-    iterations = auto.vertex_iterations if params.vertex_iterations is None else params.vertex_iterations
+    iterations = _vertex_iterations_used(params, auto)
     x_new, flips_before, flips_after = update_vertices(frame.x, frame.faces, tgv.normals, iterations,
                                                        params.flip_repair_rounds, check_cancel=check_cancel)
     t_vu_end = time.perf_counter()
@@ -226,13 +226,18 @@ def _weights_used(params: DenoiseParams, auto: Weights, hand_scale: float) -> tu
     return float(alpha0), float(alpha1)
 
 
+def _vertex_iterations_used(params: DenoiseParams, auto: Weights) -> int:
+    """The user's count where set, else the one chosen for the noise."""
+    return auto.vertex_iterations if params.vertex_iterations is None else int(params.vertex_iterations)
+
+
 def _weights_report(params: DenoiseParams, auto: Weights, alpha0: float, alpha1: float) -> dict:
     return {
         "alpha0": alpha0,
         "alpha1": alpha1,
         "alpha0_from": "noise" if params.alpha0 is None else "parameter",
         "alpha1_from": "noise" if params.alpha1 is None else "parameter",
-        "vertex_iterations": auto.vertex_iterations if params.vertex_iterations is None else params.vertex_iterations,
+        "vertex_iterations": _vertex_iterations_used(params, auto),
         "vertex_iterations_from": "noise" if params.vertex_iterations is None else "parameter",
         "for_the_noise": auto.as_report(),
     }
