@@ -42,12 +42,12 @@ _TIMEOUT_S = 600.0
 @dataclass(frozen=True)
 class WarmupReport:
     """What :func:`warm_kernels` did: why it ran no job (`skipped`; None: it ran one), the seconds it took and
-    each stage's status; `stamp` is the stamp's path."""
+    each stage's status; `stamp` is the stamp's path (None where no stage would compile anything)."""
 
     skipped: str | None
     seconds: float
     stages: dict[str, str]
-    stamp: Path
+    stamp: Path | None
 
 
 def make_warmup_cloud(rng: np.random.Generator, *, n_points: int = _POINTS) -> np.ndarray:
@@ -156,10 +156,11 @@ def warm_kernels(settings: Settings, *, force: bool = False) -> WarmupReport:
 
     t0 = time.perf_counter()
     stages = warm_stages(settings)
+    if not stages:  # nothing to compile, and no numba to load for the stamp's name either
+        return WarmupReport("the pipeline runs ingest alone", time.perf_counter() - t0, {}, None)
     stamp = stamp_path(stages)
-    if not stages or stamp.exists() and not force:
-        why = f"{stamp.name} is there" if stages else "the pipeline runs ingest alone"
-        return WarmupReport(why, time.perf_counter() - t0, {}, stamp)
+    if stamp.exists() and not force:
+        return WarmupReport(f"{stamp.name} is there", time.perf_counter() - t0, {}, stamp)
     cloud = make_warmup_cloud(np.random.default_rng(0))
     with tempfile.TemporaryDirectory(prefix="cloud2cnc-warmup-") as tmp:
         upload = Path(tmp) / "warmup.xyz"
