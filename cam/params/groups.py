@@ -93,7 +93,8 @@ class RemeshParams(_Group):
                                        "input, as a fraction of its bounding-box diagonal.")
     snap_creases: bool = Field(False, description="Move each layout's vertices so that its edges run along the "
                                "input's creases (over segment.sharp_angle_deg, and long ones over 35°) before the "
-                               "layouts are compared: a crease no quad edge can follow is left as it is and reported. "
+                               "layouts are compared; a quad that a crease crosses from corner to corner is collapsed (two opposite "
+                               "corners merged on the crease); a crease no quad edge can follow is left as it is and reported. "
                                "Off by default: the fit gets worse on some parts (bench/results/snap_fit.md).")
 
 

@@ -26,6 +26,7 @@ from cam.mesh.closest import MeshIndex, mesh_index
 from cam.mesh.rows import unique_pairs
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads, hausdorff_to_mesh
+from cam.remesh.check import inspect_quad_mesh
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
 from cam.remesh.process import QuadriflowFailed, QuadriflowRuns
 from cam.remesh.snap import snap_to_creases
@@ -145,9 +146,10 @@ def remesh_quads(
         - ``max_hausdorff_ratio``: largest accepted two-sided Hausdorff distance as a
           fraction of the input's bounding-box diagonal.
         - ``snap_creases``: move each passing layout's vertices so that its edges run along the creases
-          (:func:`cam.remesh.snap.snap_to_creases`) before the candidates are compared; the report's ``snap``
-          says what was snapped, what not and why, and the recall and straddling quads before. The
-          distances and crease measures in the report are the snapped layout's.
+          (:func:`cam.remesh.snap.snap_to_creases`), collapsing the quads a crease crosses from corner to
+          corner, before the candidates are compared; the report's ``snap`` says what was snapped, what not
+          and why, the quads collapsed, and the recall and straddling quads before. The distances, check and
+          crease measures in the report are the snapped layout's.
     progress
         ``progress(fraction, message)`` before each run and before its checks.
     check_cancel
@@ -195,17 +197,19 @@ def remesh_quads(
 
 
 def _snap(vertices: np.ndarray, faces: np.ndarray, mesh: _Input, facts: dict, crease_angle_deg: float
-          ) -> tuple[np.ndarray, dict]:
-    """A layout's vertices with its edges on the creases (`cam.remesh.snap`), and its facts with the distances
-    anew and ``snap`` (what was snapped and what not, the recall and straddling quads before)."""
+          ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A layout with its edges on the creases (`cam.remesh.snap`: vertices, and quads less those it collapsed),
+    and its facts with the distances and the check anew and ``snap`` (what was snapped and what not, the
+    recall and straddling quads before)."""
     started = time.monotonic()
     before = measure_crease_conformity(vertices, faces, mesh.vertices, mesh.triangles,
                                        crease_angle_deg=crease_angle_deg)
     snapped = snap_to_creases(vertices, faces, mesh.vertices, mesh.triangles, crease_angle_deg=crease_angle_deg,
                               index=mesh.index)
-    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, faces, mesh.index)
-    return snapped.vertices, {
-        **facts, "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
+    hausdorff, mean = hausdorff_to_mesh(snapped.vertices, snapped.quads, mesh.index)
+    check = inspect_quad_mesh(snapped.vertices, snapped.quads, expected_boundary_loops=mesh.boundary_loops)
+    return snapped.vertices, snapped.quads, {
+        **facts, "check": check.as_dict(), "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
         "mean_distance_mm": mean, "snap_s": time.monotonic() - started,
         "snap": {**snapped.report, "crease_recall_before": before.recall,
                  "straddling_quads_before": len(before.straddling)}}
@@ -330,7 +334,7 @@ def _measure_candidate(mesh: _Input, params: RemeshParams, out_v: np.ndarray, ou
     ``runs`` counts the runs so far, this one included; ``started`` is the run's start on ``time.monotonic``.
     """
     if params.snap_creases:
-        out_v, facts = _snap(out_v, out_f, mesh, facts, crease_angle_deg)
+        out_v, out_f, facts = _snap(out_v, out_f, mesh, facts, crease_angle_deg)
     creases = measure_crease_following(out_v, out_f, mesh.vertices, mesh.triangles)
     report = {
         "seed": seed, "attempts": runs, "quadriflow_target_faces": target,

@@ -17,15 +17,22 @@ crease inside it, so each such quad costs the fit its tolerance there.
    (edge length weighted by the squared distance in quarter quads), that does not turn inside a quad
    (two sides of one quad in a row would put three of its corners on one line; allowed where the quad's
    corner is nearly straight already, as QuadriFlow leaves some beside creases) and that uses no vertex
-   of another chain. A chain without such a path is cut in two at its middle, where the nearest free
-   quad vertex becomes the halves' shared end, and the halves are tried after the chains (down to halves
-   of a quad and a half); a piece that still has none is not snapped.
+   of another chain. A chain without such a path gets one that turns inside quads where it must (a crease
+   that runs across a quad from corner to corner), each such quad then collapsed: its other two corners
+   merge into one vertex on the chain (`cam.remesh.collapse`), where that keeps every vertex at three edges
+   or more and joins no two edges or quads, never at two vertices in a row, and first only where the merge
+   leaves no quad beside it with three corners on the chain. A chain with no path even so is cut in two at
+   its middle, where the nearest free quad vertex becomes the halves' shared end, and the halves are tried
+   after the chains (down to halves of a quad and a half); a piece that still has none is not snapped.
 3. The path's vertices move onto the chain: each to its closest point where those run on in order a tenth
-   of a quad apart, else spaced along the chain as they were along the path. The vertices within two
+   of a quad apart, else spaced along the chain as they were along the path (a collapsed quad's merged
+   vertex goes where the quad's middle is nearest the chain). The vertices within two
    rings of them follow by half their neighbours' moves, back on the triangle mesh in the crease-bounded
    region they were in (but those that lie on a crease already, snapped or not).
 4. A quad that would fold (a corner turned against the quad's normal or the surface's) or collapse
-   undoes the chains that moved it, and the rest are snapped again, for up to three rounds.
+   takes back the collapses of the chains that moved it (their looser paths first, then all), or, where
+   none collapsed, undoes those chains, and the rest are snapped again; so does a collapse that leaves a
+   defect in the mesh (`cam.remesh.check`). Nine rounds of undoing at most.
 
 Chains that are not snapped are reported with where they run and why; a quad left across one is not
 hidden (`cam.remesh.creases.measure_crease_conformity` counts them).
@@ -49,13 +56,18 @@ from cam.remesh.chains import (
     distance_to_polyline,
     points_at,
 )
+from cam.remesh.check import inspect_quad_mesh
+from cam.remesh.collapse import collapse_diagonals
 
 __all__ = ["Snapped", "snap_to_creases"]
 
 # A path's vertices this far from their chain (in quad lengths) cost (1 + (d / _SPREAD)²) times the edge length.
 _SPREAD = 0.25
-# A path may run along two sides of one quad only where the quad's corner between them is this straight already.
+# A path may run along two sides of one quad only where the quad's corner between them is this straight already,
+# or, where no path has none of those turns, where that quad is collapsed (its other two corners merged on the
+# chain); each such turn costs as much as this many quad lengths of path.
 _STRAIGHT_DEG = 150.0
+_COLLAPSE_COST = 1.0
 # Quad vertices searched around a chain: within this many quad lengths of it.
 _CORRIDOR = 1.0
 # A chain shorter than this many quad lengths is too short for a quad edge of its own.
@@ -67,12 +79,15 @@ _ON_CREASE = 0.05
 # Rings of vertices round the moved ones that are relaxed, and the rounds of relaxation.
 _RELAX_RINGS = 2
 _RELAX_ROUNDS = 4
+# A quad with a corner this near straight (degrees) before snapping may turn inside out; it was a dart already.
+_STRAIGHT_FOLDED_DEG = 1.0
 # A quad collapses when its area falls under this share of what it was.
 _MIN_AREA = 0.2
-# Rounds of undoing the chains that fold quads.
-_ROUNDS = 3
-# Why a piece whose snapping folds or collapses a quad is not snapped.
+# Rounds of undoing what folds quads or breaks the mesh: a piece's looser collapses, its collapses, the piece.
+_ROUNDS = 9
+# Why a piece whose snapping folds or collapses a quad is not snapped, or whose quad collapses break the mesh.
 _FOLDS = "snapping it folds a quad"
+_BREAKS = "collapsing the quads it crosses breaks the mesh"
 # Chains listed in the report at most (the counts cover all).
 _REPORTED = 20
 
@@ -83,15 +98,18 @@ class Snapped:
 
     Attributes
     ----------
-    vertices : (n, 3) float64
+    vertices : (n', 3) float64
         The quad mesh's vertices, mm: those of snapped chains on the creases, their neighbours relaxed,
-        the rest as given.
+        the rest as given; without the corners merged away by collapsed quads (n' = n - collapsed quads).
+    quads : (m', 4) int64
+        Its quads: the given ones less the collapsed ones, renumbered.
     report : dict
         JSON-ready: crease chains found and snapped, their lengths (mm), vertices moved, the largest move
-        (mm), and the chains not snapped (where they run, how long, why).
+        (mm), quads collapsed, and the chains not snapped (where they run, how long, why).
     """
 
     vertices: np.ndarray
+    quads: np.ndarray
     report: dict = field(default_factory=dict)
 
 
@@ -117,10 +135,12 @@ class _Layout:
                                                             1e-300)
         angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).tolist()
         self.turns: dict[tuple[int, int, int], float] = {}
-        for f, a in zip(quads.tolist(), angle, strict=True):
+        self.across: dict[tuple[int, int, int], tuple[int, int]] = {}  # (u, v, w) -> (the quad, its fourth corner)
+        for k, (f, a) in enumerate(zip(quads.tolist(), angle, strict=True)):
             for i in range(4):
-                u, v, w = f[i - 1], f[i], f[(i + 1) % 4]
+                u, v, w, x = f[i - 1], f[i], f[(i + 1) % 4], f[(i + 2) % 4]
                 self.turns[(u, v, w)] = self.turns[(w, v, u)] = a[i]
+                self.across[(u, v, w)] = self.across[(w, v, u)] = (k, x)
         self.tree = cKDTree(vertices)
 
 
@@ -169,15 +189,49 @@ def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.n
     index = mesh_index(tv, tf) if index is None else index
     home = region[closest_points(index, qv)[2]]
     failed: dict[tuple, str] = {}
+    # pieces whose collapses folded or broke the mesh: -> 1 (strict paths only, `_path`), then 2 (no collapse)
+    retreat: dict[tuple, int] = {}
+    before = inspect_quad_mesh(qv, qf)
     for _ in range(_ROUNDS + 1):
-        new, moved_by, pieces = _snap(layout, chains, failed, index, region, home, on_crease)
-        folded = _folded(new, layout, index)
-        if not len(folded):
-            return Snapped(vertices=new, report=_report(chains, pieces, failed, qv, new))
-        for key in {key for k in folded.tolist() for v in qf[k].tolist() for key in moved_by.get(v, ())}:
-            failed[key] = _FOLDS
+        new, moved_by, pieces, collapses = _snap(layout, chains, failed, retreat, index, region, home, on_crease)
+        folded = _folded(new, layout, index, collapsed={q for _, (q, _, _) in collapses})
+        movers = {key for k in folded.tolist() for v in qf[k].tolist() for key in moved_by.get(v, ())}
+        collapsing = {key for key, _ in collapses}
+        if movers & collapsing:
+            retreat.update({key: retreat.get(key, 0) + 1 for key in movers & collapsing})
+            continue
+        if movers:
+            failed.update(dict.fromkeys(movers, _FOLDS))
+            continue
+        out_v, out_q, broken = _collapse(new, qf, collapses, before)
+        if broken:
+            retreat.update({key: retreat.get(key, 0) + 1 for key in broken})
+            continue
+        return Snapped(vertices=out_v, quads=out_q,
+                       report={**_report(chains, pieces, failed, qv, new), "collapsed_quads": len(collapses)})
     whole = {(c,): chain for c, chain in enumerate(chains)}
-    return Snapped(vertices=qv.copy(), report=_report(chains, whole, dict.fromkeys(whole, _FOLDS), qv, qv))
+    return Snapped(vertices=qv.copy(), quads=qf.copy(),
+                   report={**_report(chains, whole, dict.fromkeys(whole, _FOLDS), qv, qv), "collapsed_quads": 0})
+
+
+def _collapse(new: np.ndarray, quads: np.ndarray, collapses: list[tuple[tuple, tuple[int, int, int]]],
+              before) -> tuple[np.ndarray, np.ndarray, set[tuple]]:
+    """The layout with the pieces' quads collapsed (`cam.remesh.collapse`), piece by piece in order, and the
+    pieces whose collapses give the mesh a defect it did not have (``before``: the layout's inspection) or
+    change its genus; those are left out."""
+    keys = list(dict.fromkeys(key for key, _ in collapses))
+    kept: list[tuple[int, int, int]] = []
+    broken: set[tuple] = set()
+    out_v, out_q = new, quads
+    for key in keys:
+        trial = kept + [c for k, c in collapses if k == key]
+        v, q = collapse_diagonals(new, quads, trial)
+        after = inspect_quad_mesh(v, q)
+        if set(after.problems) - set(before.problems) or after.euler_characteristic != before.euler_characteristic:
+            broken.add(key)
+            continue
+        kept, out_v, out_q = trial, v, q
+    return out_v, out_q, broken
 
 
 def _check(quad_vertices, quads, vertices, triangles) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -211,13 +265,17 @@ def _on_creases(layout: _Layout, chains: list[Chain]) -> set[int]:
 
 # --- snapping -----------------------------------------------------------------------------------------------
 
-def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], index: MeshIndex, region: np.ndarray,
-          home: np.ndarray, on_crease: set[int]) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, Chain]]:
+def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], retreat: dict[tuple, int], index: MeshIndex,
+          region: np.ndarray, home: np.ndarray, on_crease: set[int]
+          ) -> tuple[np.ndarray, dict[int, set[tuple]], dict[tuple, Chain], list[tuple[tuple, tuple[int, int, int]]]]:
     """Snap the chains, longest first, but the pieces in ``failed`` (key -> why; keys: (chain,), and a split
-    piece's its parent's with 0 or 1 added), and add why others fail. A chain with no path along it is cut in
-    two at its middle, where a quad vertex of its own goes (down to `_MIN_SPLIT` quads), and its halves are
-    tried after the chains; relaxing leaves the vertices `on_crease`. Returns the new vertices, the pieces that
-    moved each vertex, and every piece tried."""
+    piece's its parent's with 0 or 1 added), and add why others fail. A chain with no path along it is given
+    one that turns inside quads it collapses (strict paths only for a piece, or a half of a piece, whose
+    ``retreat`` is 1, none where it is 2); failing that, it is cut in two at its middle, where a quad vertex
+    of its own goes (down to `_MIN_SPLIT` quads), and its halves are tried after the chains; relaxing leaves
+    the vertices `on_crease`. Returns the new vertices (a collapsed quad's dropped corner where its kept one
+    went), the pieces that moved each vertex, every piece tried, and the collapses (piece, (quad, kept
+    corner, dropped corner))."""
     new = layout.vertices.copy()
     corners = {e: chains[c].points[k] for c in range(len(chains)) if (c,) not in failed
                for e, k in zip(chains[c].ends, (0, -1), strict=True)}
@@ -226,6 +284,7 @@ def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], index:
     moved_by: dict[int, set[tuple]] = {}
     queue = [((c,), chain) for c, chain in enumerate(chains)]
     pieces: dict[tuple, Chain] = {}
+    collapses: list[tuple[tuple, tuple[int, int, int]]] = []
     for key, piece in queue:  # grows while it is walked: the halves of cut pieces
         pieces[key] = piece
         if key in failed:
@@ -237,21 +296,37 @@ def _snap(layout: _Layout, chains: list[Chain], failed: dict[tuple, str], index:
         if va is None or vb is None or va == vb:
             failed[key] = "no quad vertex of its own near an end"
             continue
-        path = _path(layout, piece, va, vb, blocked=(set(owner) | set(ends.values())) - {va, vb})
-        if path is None:
+        blocked = (set(owner) | set(ends.values())) - {va, vb}
+        found = _path(layout, piece, va, vb, blocked=blocked)
+        level = max(retreat.get(key[:k], 0) for k in range(1, len(key) + 1))
+        if found is None and level < 2:
+            taken = {q for _, (q, _, _) in collapses}
+            found = _path(layout, piece, va, vb, blocked=blocked, collapsed=taken)
+            if found is None and level == 0:
+                found = _path(layout, piece, va, vb, blocked=blocked, collapsed=taken, strict=False)
+        if found is None:
             halves = _halves(layout, key, piece, ends, owner)
             if halves:
                 queue += halves
             else:
                 failed[key] = "no quad-edge path runs along it"
             continue
-        for v in path:
+        path, merged = found
+        for v in path + [x for _, _, x in merged]:
             moved_by.setdefault(v, set()).add(key)
-        owner.update({v: key for v in path[1:-1]})
-        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(layout.vertices[path], axis=0), axis=1))])
-        new[path] = points_at(piece, _placement(layout.vertices[path], piece, along, layout.side))
+        owner.update({v: key for v in path[1:-1] + [x for _, _, x in merged]})
+        # a collapsed quad's merged corner goes where the quad's middle is nearest the chain
+        where = layout.vertices[path]
+        at = {v: i for i, v in enumerate(path)}
+        for _, v, x in merged:
+            where[at[v]] = 0.5 * (layout.vertices[v] + layout.vertices[x])
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(where, axis=0), axis=1))])
+        new[path] = points_at(piece, _placement(where, piece, along, layout.side))
+        for q, v, x in merged:
+            new[x] = new[v]
+            collapses.append((key, (q, v, x)))
     _relax(new, layout, moved_by, set(owner) | set(ends.values()) | on_crease, index, region, home)
-    return new, moved_by, pieces
+    return new, moved_by, pieces, collapses
 
 
 def _halves(layout: _Layout, key: tuple, piece: Chain, ends: dict, owner: dict[int, tuple]
@@ -290,8 +365,20 @@ def _end_vertices(layout: _Layout, points: dict, *, taken: set[int]) -> dict:
     return ends
 
 
-def _path(layout: _Layout, chain: Chain, va: int, vb: int, *, blocked: set[int]) -> list[int] | None:
-    """The cheapest quad-edge path va -> vb along the chain (see the module docstring), or None."""
+def _path(layout: _Layout, chain: Chain, va: int, vb: int, *, blocked: set[int], collapsed: set[int] | None = None,
+          strict: bool = True) -> tuple[list[int], list[tuple[int, int, int]]] | None:
+    """The cheapest quad-edge path va -> vb along the chain (see the module docstring) and the quads it collapses,
+    or None.
+
+    With ``collapsed`` None the path turns inside a quad only where the quad's corner is `_STRAIGHT_DEG` or
+    straighter; otherwise it may turn inside any other quad whose fourth corner can merge with the turning
+    vertex (`_collapsible`), none of those in ``collapsed`` (quads collapsed by other paths), for
+    `_COLLAPSE_COST` quad lengths each and never at two vertices in a row. ``strict``: nor where the merge would
+    make the path turn inside a quad beside the collapsed one (the vertices before and after the turning one
+    and the fourth corner are corners of one quad: three of its corners end up on the chain, which folds it
+    where the chain runs straight). Returns the path's vertices and (quad, turning vertex, fourth corner) of
+    each quad it collapses.
+    """
     side = layout.side
     samples = points_at(chain, np.linspace(0.0, chain.length, max(2, int(np.ceil(4 * chain.length / side)) + 1)))
     near = sorted(set(itertools.chain.from_iterable(layout.tree.query_ball_point(samples, _CORRIDOR * side))))
@@ -299,33 +386,79 @@ def _path(layout: _Layout, chain: Chain, va: int, vb: int, *, blocked: set[int])
     dist = dict(zip(near, distance_to_polyline(layout.vertices[near], chain.points).tolist(), strict=True))
     weight = {v: 1.0 + (d / (_SPREAD * side)) ** 2 for v, d in dist.items()}
     V = layout.vertices
-    start = (-1, va)
+    forbidden = blocked | {va, vb}  # fourth corners that may not merge away
+    # a state: (previous vertex, vertex, whether the path turned inside a quad it collapses at the previous one)
+    start = (-1, va, False)
     best = {start: 0.0}
-    parent: dict[tuple[int, int], tuple[int, int]] = {}
-    heap = [(0.0, -1, va)]
+    parent: dict[tuple[int, int, bool], tuple[int, int, bool]] = {}
+    heap = [(0.0, start)]
     while heap:
-        cost, u_prev, u = heapq.heappop(heap)
-        state = (u_prev, u)
+        cost, state = heapq.heappop(heap)
         if cost > best.get(state, np.inf):
             continue
+        u_prev, u, turned = state
         if u == vb:
-            path = [u]
-            while state in parent:
-                state = parent[state]
-                path.append(state[1])
-            return path[::-1]
+            return _walk_back(layout, state, parent)
+        before = parent[state][0] if state in parent else -1  # the vertex before u_prev
+        # after a collapse at u_prev its dropped corner sits on u_prev: the path may not go on along its quads
+        dropped = layout.across[(before, u_prev, u)][1] if turned else -1
         for w in layout.neighbours[u]:
-            if w not in weight or w == u_prev:
+            if w not in weight or w == u_prev or (strict and (dropped, u, w) in layout.turns):
                 continue
             step = float(np.linalg.norm(V[w] - V[u])) * 0.5 * (weight[u] + weight[w])
-            if layout.turns.get((u_prev, u, w), 180.0) < _STRAIGHT_DEG:
+            turn = layout.turns.get((u_prev, u, w), 180.0) < _STRAIGHT_DEG
+            if turn and (collapsed is None or turned
+                         or not _collapsible(layout, (u_prev, u, w), forbidden, collapsed)
+                         or (strict and (before, u_prev, layout.across[(u_prev, u, w)][1]) in layout.turns)):
                 continue
-            nxt = (u, w)
-            if cost + step < best.get(nxt, np.inf):
-                best[nxt] = cost + step
+            nxt = (u, w, turn)
+            total = cost + step + (_COLLAPSE_COST * side if turn else 0.0)
+            if total < best.get(nxt, np.inf):
+                best[nxt] = total
                 parent[nxt] = state
-                heapq.heappush(heap, (cost + step, u, w))
+                heapq.heappush(heap, (total, nxt))
     return None
+
+
+def _walk_back(layout: _Layout, state: tuple[int, int, bool], parent: dict
+               ) -> tuple[list[int], list[tuple[int, int, int]]] | None:
+    """The path that ends in ``state`` and its collapses; None when a quad it collapses would drop one of its
+    own vertices, two of its collapses share a corner to drop, or a vertex would keep fewer than three edges
+    (each collapse takes one from the vertices before and after the turn)."""
+    path, turns = [state[1]], []
+    while state in parent:
+        if state[2]:
+            turns.append(state[0])
+        state = parent[state]
+        path.append(state[1])
+    path = path[::-1]
+    at = {v: i for i, v in enumerate(path)}
+    merged = []
+    losses: dict[int, int] = {}
+    for v in turns:
+        i = at[v]
+        q, x = layout.across[(path[i - 1], v, path[i + 1])]
+        merged.append((q, v, x))
+        for u in (path[i - 1], path[i + 1]):
+            losses[u] = losses.get(u, 0) + 1
+    dropped = [x for _, _, x in merged]
+    if (len(set(dropped)) < len(dropped) or set(dropped) & set(path)
+            or any(len(layout.neighbours[u]) - n < 3 for u, n in losses.items())):
+        return None
+    return path, merged
+
+
+def _collapsible(layout: _Layout, turn: tuple[int, int, int], blocked: set[int], collapsed: set[int]) -> bool:
+    """Whether the quad in which a path turns u, v, w can collapse, v and its fourth corner x merging: x is free
+    (not ``blocked``), neither v nor x is on the layout's border, the quad is not in ``collapsed``, v and x have
+    no neighbours but u and w in common (else the merge joins two edges or quads), and u and w keep three edges."""
+    u, v, w = turn
+    q, x = layout.across[turn]
+    if x in blocked or q in collapsed or v in layout.border or x in layout.border:
+        return False
+    if len(layout.neighbours[u]) < 4 or len(layout.neighbours[w]) < 4:
+        return False
+    return set(layout.neighbours[v]) & set(layout.neighbours[x]) == {u, w} and x not in layout.neighbours[v]
 
 
 def _placement(points: np.ndarray, chain: Chain, along: np.ndarray, side: float) -> np.ndarray:
@@ -370,30 +503,40 @@ def _relax(new: np.ndarray, layout: _Layout, moved_by: dict[int, set[tuple]], fi
     new[free[keep]] = on[keep]
 
 
-def _folded(new: np.ndarray, layout: _Layout, index: MeshIndex) -> np.ndarray:
+def _folded(new: np.ndarray, layout: _Layout, index: MeshIndex, *, collapsed: set[int]) -> np.ndarray:
     """Quads with a moved corner that snapping folds or collapses: int64 (k,) quad ids.
 
     A quad folds when a corner turns inside out (against the quad's normal) or the quad turns against the
-    surface's normal, and it did not before (QuadriFlow leaves a few quads folded over crease corners; those are
-    not snapping's doing); it collapses when its area falls under `_MIN_AREA` of what it was.
+    surface's normal, and it did not before (QuadriFlow leaves a few quads folded over crease corners, and a few
+    darts with a corner within `_STRAIGHT_FOLDED_DEG` of straight that any move can turn; those are not
+    snapping's doing); it collapses when its area falls under `_MIN_AREA` of what it was. The quads in
+    ``collapsed`` are removed on purpose and not counted.
     """
     moved = np.flatnonzero(np.any(new != layout.vertices, axis=1))
     if not len(moved):
         return np.zeros(0, dtype=np.int64)
     touched = np.flatnonzero(np.isin(layout.quads, moved).any(axis=1))
+    touched = touched[~np.isin(touched, list(collapsed))]
     fold_new, area_new = _quad_shape(new[layout.quads[touched]], index)
-    fold_old, area_old = _quad_shape(layout.vertices[layout.quads[touched]], index)
+    fold_old, area_old = _quad_shape(layout.vertices[layout.quads[touched]], index, straight_deg=_STRAIGHT_FOLDED_DEG)
     return touched[(fold_new & ~fold_old) | ~(area_new >= _MIN_AREA * area_old)]
 
 
-def _quad_shape(p: np.ndarray, index: MeshIndex) -> tuple[np.ndarray, np.ndarray]:
-    """Whether each quad (corners (k, 4, 3), mm) folds (bool (k,)), and its area (mm², float (k,))."""
+def _quad_shape(p: np.ndarray, index: MeshIndex, *, straight_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each quad (corners (k, 4, 3), mm) folds (bool (k,)), and its area (mm², float (k,)); a corner within
+    ``straight_deg`` of straight counts as folded."""
     normal = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
     length = np.linalg.norm(normal, axis=1)
-    corner = np.cross(np.roll(p, -1, axis=1) - p, np.roll(p, 1, axis=1) - p)  # (k, 4, 3), 2 x corner triangle
+    after, before = np.roll(p, -1, axis=1) - p, np.roll(p, 1, axis=1) - p
+    corner = np.cross(after, before)  # (k, 4, 3), 2 x corner triangle
     # a straight corner (zero corner triangle) is not inside out; a reflex one is
     inside_out = (np.einsum("kcd,kd->kc", corner, normal)
                   < -1e-6 * np.linalg.norm(corner, axis=2) * length[:, None]).any(axis=1)
+    if straight_deg > 0:
+        sine = np.einsum("kcd,kd->kc", corner, normal) / np.maximum(
+            np.linalg.norm(after, axis=2) * np.linalg.norm(before, axis=2) * length[:, None], 1e-300)
+        obtuse = np.einsum("kcd,kcd->kc", after, before) < 0
+        inside_out |= (obtuse & (sine < np.sin(np.radians(straight_deg)))).any(axis=1)
     _, _, tri, _ = closest_points(index, p.mean(axis=1))
     t = index.vertices[index.faces[tri]]
     against = np.einsum("kd,kd->k", normal, np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])) <= 0

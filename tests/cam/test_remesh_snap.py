@@ -41,6 +41,7 @@ def test_quad_edges_pushed_off_a_box_s_edges_are_put_back_on_them():
     before = measure_crease_conformity(pushed, qf, tri.vertices, tri.faces)
     assert before.recall < 0.5 and len(before.straddling) > 0
     snapped = snap_to_creases(pushed, qf, tri.vertices, tri.faces)
+    np.testing.assert_array_equal(snapped.quads, qf)  # an aligned layout needs no collapse
     after = measure_crease_conformity(snapped.vertices, qf, tri.vertices, tri.faces)
     assert after.recall == 1.0 and len(after.straddling) == 0
     # each pushed vertex is back on a box edge, exactly where the layout had it (spaced as it was along the edge)
@@ -55,9 +56,10 @@ def test_quad_edges_pushed_off_a_box_s_edges_are_put_back_on_them():
     assert inspect_quad_mesh(snapped.vertices, qf).problems == ()
 
 
-def test_a_layout_laid_across_a_crease_is_left_as_it_is_and_the_crease_reported():
-    # A roof: two planes meeting at 90° along the x axis, under a quad grid turned 45° to the ridge. No quad
-    # edge path runs along the ridge without turning inside a quad, so nothing moves and the ridge is reported.
+def test_a_layout_laid_diagonally_across_a_crease_collapses_quads_where_it_can_and_reports_the_rest():
+    # A roof: two planes meeting at 90° along the x axis, under a quad grid turned 45° to the ridge. Every quad-edge
+    # path along the ridge turns inside a quad at every other vertex; collapsing all of those quads would leave the
+    # ridge's vertices with two edges, so only pieces whose collapses keep three edges everywhere are snapped.
     gv, gf = quad_grid(12, 12, size=(12.0, 12.0))
     gv -= [6.0, 6.0, 0.0]
     turn = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, np.sqrt(2.0)]]) / np.sqrt(2.0)
@@ -68,10 +70,20 @@ def test_a_layout_laid_across_a_crease_is_left_as_it_is_and_the_crease_reported(
     tv[:, 2] = -np.abs(tv[:, 1])
     tf = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     snapped = snap_to_creases(qv, gf, tv, tf)
-    np.testing.assert_array_equal(snapped.vertices, qv)
     report = snapped.report
-    assert report["snapped_chains"] == 0 and report["snapped_length_mm"] == 0.0 and report["moved_vertices"] == 0
+    # each collapse removes one quad and one vertex, and the layout stays a manifold quad mesh of one border loop
+    assert report["collapsed_quads"] > 0
+    assert len(gf) - len(snapped.quads) == len(qv) - len(snapped.vertices) == report["collapsed_quads"]
+    check = inspect_quad_mesh(snapped.vertices, snapped.quads, expected_boundary_loops=1)
+    assert check.problems == () and check.euler_characteristic == inspect_quad_mesh(qv, gf).euler_characteristic
+    # every vertex is still on the roof, and the snapped pieces' length is followed by quad edges
+    np.testing.assert_allclose(snapped.vertices[:, 2], -np.abs(snapped.vertices[:, 1]), atol=1e-9)
+    conformity = measure_crease_conformity(snapped.vertices, snapped.quads, tv, tf)
+    assert measure_crease_conformity(qv, gf, tv, tf).recall == 0.0
+    assert 0.0 < report["snapped_length_mm"] / 18.0 <= conformity.recall < 1.0
+    # the rest is reported piece by piece, and adds up to the ridge
     assert report["not_snapped"] and all(c["why"] == "no quad-edge path runs along it" for c in report["not_snapped"])
+    assert report["snapped_length_mm"] + sum(c["length_mm"] for c in report["not_snapped"]) == pytest.approx(18.0)
 
 
 def _box_pocket_fillet() -> tuple[np.ndarray, np.ndarray]:
@@ -99,7 +111,10 @@ def test_remesh_snaps_its_layout_onto_a_pocketed_part_s_creases():
     unsnapped = snap["crease_chain_length_mm"] - snap["snapped_length_mm"]
     assert unsnapped == pytest.approx(sum(c["length_mm"] for c in snap["not_snapped"]), abs=1e-2)
     assert all(c["why"] for c in snap["not_snapped"])
-    assert inspect_quad_mesh(result.vertices, result.faces).problems == ()
+    # the check and counts are the returned layout's, collapsed quads and all
+    check = inspect_quad_mesh(result.vertices, result.faces)
+    assert check.problems == () and report["check"] == check.as_dict()
+    assert report["faces"] == len(result.faces) and report["vertices"] == len(result.vertices)
     assert report["hausdorff_ratio"] < RemeshParams().max_hausdorff_ratio
 
 
