@@ -288,6 +288,8 @@ def bench_part(name: str, mesh: Mesh) -> dict:
             "straddling_quads_quadriflow": report["snap"]["straddling_quads_before"],
             "chains": report["snap"]["crease_chains"], "chains_snapped": report["snap"]["snapped_chains"],
             "chains_partly": report["snap"]["partly_snapped_chains"],
+            "collapsed_quads": report["snap"]["collapsed_quads"],
+            "irregular_vertices_quadriflow": report["snap"]["extraordinary_vertices_before"],
             "irregular_vertices": report["check"]["extraordinary_vertices"],
             "hausdorff_ratio": report["hausdorff_ratio"], "missed_crease_mm": report["missed_crease_mm"],
             "failed_attempts": report["failed_attempts"]}
@@ -309,15 +311,16 @@ def write_table(rows: list[dict], absent: list[str], out: Path, machine: str) ->
         "(dihedral over 50°, `segment.sharp_angle_deg`; the second figure over 35°, snapped layout) that quad",
         "edges within 30° of its direction follow within 0.2 % of the bounding-box diagonal. Straddling: quads with",
         "no crease-bounded region holding all four corners (corners within the tolerance of a crease count on both",
-        "sides). Chains: crease chains (creases cut at corners) snapped whole of all, and in part. Irregular: interior",
-        "vertices of valence ≠ 4. Hausdorff: two-sided, over the diagonal (snapped layout). Fandisk and Block ×10;",
+        "sides). Chains: crease chains (creases cut at corners) snapped whole of all, and in part; collapsed: quads",
+        "a crease crossed from corner to corner, removed by merging their other two corners on it. Irregular: interior",
+        "vertices of valence ≠ 4, QF → snapped. Hausdorff: two-sided, over the diagonal (snapped layout). Fandisk and Block ×10;",
         "ABC parts scaled to a 60 mm bounding-box diagonal. Set: `tune` = tuning set, `held` = held out.",
         "",
         f"Machine: {machine}.",
         "",
         ("| part | set | triangles | result | quads | recall >50° QF → snapped | recall >35° | straddling >50° QF → "
-         "snapped (>35°) | chains snapped (partly) | irregular | Hausdorff / diag | s |"),
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+         "snapped (>35°) | chains snapped (partly) | collapsed | irregular | Hausdorff / diag | s |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         held = "held" if r["held_out"] else "tune"
@@ -328,12 +331,13 @@ def write_table(rows: list[dict], absent: list[str], out: Path, machine: str) ->
                 f"{_fmt(r['crease_recall'], '.3f')} of {r['crease_length_mm']:.0f} mm | "
                 f"{_fmt(r['crease_recall_35'], '.3f')} of {r['crease_length_35_mm']:.0f} mm | "
                 f"{r['straddling_quads_quadriflow']} → {r['straddling_quads']} ({r['straddling_quads_35']}) | "
-                f"{r['chains_snapped']} of {r['chains']} ({r['chains_partly']}) | "
-                f"{r['irregular_vertices']} | {r['hausdorff_ratio']:.2%} | {r['seconds']:.0f} |")
+                f"{r['chains_snapped']} of {r['chains']} ({r['chains_partly']}) | {r['collapsed_quads']} | "
+                f"{r['irregular_vertices_quadriflow']} → {r['irregular_vertices']} | {r['hausdorff_ratio']:.2%} | "
+                f"{r['seconds']:.0f} |")
         else:
             seconds = f"{r['seconds']:.0f}" if "seconds" in r else "—"
             result = ("refused: " if r.get("refused") else "failed: ") + r["reason"]
-            lines.append(f"| {r['part']} | {held} | {r['triangles']} | {result} | — | — | — | — | — | — | — | {seconds} |")
+            lines.append(f"| {r['part']} | {held} | {r['triangles']} | {result} | — | — | — | — | — | — | — | — | {seconds} |")
     ok = [r for r in rows if r["ok"]]
     closed = [r for r in rows if not r.get("refused")]
     recalls = [r["crease_recall"] for r in ok if r["crease_recall"] is not None]

@@ -200,7 +200,7 @@ def _snap(vertices: np.ndarray, faces: np.ndarray, mesh: _Input, facts: dict, cr
           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """A layout with its edges on the creases (`cam.remesh.snap`: vertices, and quads less those it collapsed),
     and its facts with the distances and the check anew and ``snap`` (what was snapped and what not, the
-    recall and straddling quads before)."""
+    recall, straddling quads and extraordinary vertices before)."""
     started = time.monotonic()
     before = measure_crease_conformity(vertices, faces, mesh.vertices, mesh.triangles,
                                        crease_angle_deg=crease_angle_deg)
@@ -212,7 +212,8 @@ def _snap(vertices: np.ndarray, faces: np.ndarray, mesh: _Input, facts: dict, cr
         **facts, "check": check.as_dict(), "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
         "mean_distance_mm": mean, "snap_s": time.monotonic() - started,
         "snap": {**snapped.report, "crease_recall_before": before.recall,
-                 "straddling_quads_before": len(before.straddling)}}
+                 "straddling_quads_before": len(before.straddling),
+                 "extraordinary_vertices_before": facts["check"]["extraordinary_vertices"]}}
 
 
 def _prepare_input(vertices: np.ndarray, faces: np.ndarray) -> _Input:
