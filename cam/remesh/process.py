@@ -32,6 +32,11 @@ _CHILD_GRACE_S = 30.0
 # two children sharing two cores), but never before _HANG_FLOOR_S.
 _HANG_FACTOR = 4.0
 _HANG_FLOOR_S = 15.0
+# While no run on a mesh has given a mesh, every run going has run this long (s) and a spare run is named, the spare
+# starts beside them. QuadriFlow's runs take 5-20 s on the bench's parts and on 50k-point clouds' meshes (one thin
+# plate about 70 s); two seeds once hung side by side on a cloud's mesh and the remesh waited out its 300 s limit
+# while a third seed then gave a mesh in 6 s. A spare that gives a mesh sets the pace, and the hung runs stop.
+_STALL_S = 60.0
 
 
 class QuadriflowFailed(RuntimeError):
@@ -98,8 +103,10 @@ def run_quadriflow(
 class QuadriflowRuns:
     """QuadriFlow runs on one mesh, up to `processes` children at once, each keyed by (target_faces, seed).
 
-    `plan(keys)` says which runs are wanted next, in order: children running for any other key are killed,
-    and children are started for the first keys while fewer than `processes` run. `result(key)` waits for
+    `plan(keys, spare)` says which runs are wanted next, in order: children running for any other key (or the
+    spare) are killed, and children are started for the first keys while fewer than `processes` run. The
+    spare (the run wanted should the first key fail) starts beside them, over `processes`, once every run
+    going has run `_STALL_S` with no run on the mesh having given a mesh yet. `result(key)` waits for
     that run (starting it if need be), checking every child's time limit and the caller's cancellation
     four times a second, and returns its vertices and faces, its seconds and its start on
     `time.monotonic`, or raises its `QuadriflowFailed`. `close()` kills what still runs. A run's result
@@ -129,15 +136,17 @@ class QuadriflowRuns:
         self._processes = max(1, int(processes))
         self._running: dict[tuple[int, int], tuple[subprocess.Popen, threading.Thread, dict, float]] = {}
         self._quickest_s: float | None = None  # the shortest run that gave a mesh
+        self._spare: tuple[int, int] | None = None
 
     def _limit_s(self) -> float:
         if self._quickest_s is None:
             return self._timeout_s
         return min(self._timeout_s, max(_HANG_FLOOR_S, _HANG_FACTOR * self._quickest_s))
 
-    def plan(self, keys: list[tuple[int, int]]) -> None:
-        """Keep the runs of `keys` only, and start the first of them while fewer than `processes` run."""
-        for key in [k for k in self._running if k not in keys]:
+    def plan(self, keys: list[tuple[int, int]], spare: tuple[int, int] | None = None) -> None:
+        """Keep the runs of `keys` and `spare` only, and start the first keys while fewer than `processes` run."""
+        self._spare = spare
+        for key in [k for k in self._running if k not in keys and k != spare]:
             self._stop(key)
         for key in keys:
             if len(self._running) >= self._processes:
@@ -154,6 +163,7 @@ class QuadriflowRuns:
         try:
             while talker.is_alive():
                 self._pace_from_finished()
+                self._start_spare_if_stalled()
                 limit = self._limit_s()
                 talker.join(max(0.0, min(_CHECK_EVERY_S, started + limit - time.monotonic())))
                 if not talker.is_alive():
@@ -177,6 +187,13 @@ class QuadriflowRuns:
         for proc, talker, out, started in self._running.values():
             if not talker.is_alive() and proc.returncode == 0 and out.get("out"):
                 self._note_pace(out["ended"] - started)
+
+    def _start_spare_if_stalled(self) -> None:
+        if self._quickest_s is not None or self._spare is None or self._spare in self._running:
+            return
+        now = time.monotonic()
+        if all(now - started >= _STALL_S for _, _, _, started in self._running.values()):
+            self._start(self._spare)
 
     def _note_pace(self, seconds: float) -> None:
         self._quickest_s = seconds if self._quickest_s is None else min(self._quickest_s, seconds)

@@ -140,7 +140,9 @@ def remesh_quads(
           The report lists them under ``"candidates"`` (seed, QuadriFlow's target, faces,
           missed crease length, Hausdorff distance).
         - ``timeout_s``: limit of one run, seconds; once a run has given a mesh in t seconds, later runs that
-          take over max(15 s, 4 t) are taken to hang and stopped (see `cam.remesh.process.QuadriflowRuns`).
+          take over max(15 s, 4 t) are taken to hang and stopped; until one has, once every run going has run
+          60 s, the run that would follow a failure starts beside them, so that two runs hanging side by side
+          do not wait out the limit (see `cam.remesh.process.QuadriflowRuns`).
         - ``preserve_sharp``: align quads with sharp features (QuadriFlow's ``-sharp``).
         - ``min_cost_flow``: QuadriFlow's ``-mcf`` (slower, sometimes fewer singularities).
         - ``max_hausdorff_ratio``: largest accepted two-sided Hausdorff distance as a
@@ -284,8 +286,12 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
             if progress is not None:
                 progress(attempt / (params.attempts + 1), f"QuadriFlow, seed {seed}")
             following = [] if split else upcoming(attempt + 1, params.candidates - len(accepted) - 1)
+            # should this run fail (hang), the next one takes a nudged count
+            spare = (None if split or attempt + 1 >= params.attempts
+                     else _seed_and_target(params, attempt + 1, after_failure=True, split=False)[::-1])
             try:
-                raw_v, raw_f, quadriflow_s, started = _quadriflow(pool, (target, seed), following, check_cancel)
+                raw_v, raw_f, quadriflow_s, started = _quadriflow(pool, (target, seed), following, spare,
+                                                                  check_cancel)
                 if progress is not None:
                     progress((attempt + 0.8) / (params.attempts + 1), "checking the quads")
                 out_v, out_f, facts = accept_quads(raw_v, raw_f, mesh.vertices, mesh.triangles,
@@ -306,12 +312,14 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
 
 
 def _quadriflow(pool: QuadriflowRuns, key: tuple[int, int], following: list[tuple[int, int]],
-                check_cancel: CheckCancel | None) -> tuple[np.ndarray, np.ndarray, float, float]:
+                spare: tuple[int, int] | None, check_cancel: CheckCancel | None
+                ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """The run of key (target, seed): vertices, faces, seconds and start on `time.monotonic`; the `following`
-    runs (those wanted should this one pass) run beside it while the pool has room. QuadriflowFailed as raised."""
-    pool.plan([key, *following])
+    runs (those wanted should this one pass) run beside it while the pool has room, and the `spare` (the one
+    wanted should it fail) once the runs stall (`QuadriflowRuns`). QuadriflowFailed as raised."""
+    pool.plan([key, *following], spare)
     result = pool.result(key, check_cancel=check_cancel)
-    pool.plan(following)  # while this result is checked
+    pool.plan(following, spare)  # while this result is checked
     return result
 
 

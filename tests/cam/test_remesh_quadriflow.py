@@ -87,9 +87,9 @@ def test_timeouts_are_retried_with_other_seeds_and_face_counts_then_reported():
     assert issubclass(RemeshFailed, GeometryError)  # the runner shows its message to the user
 
 
-def _hang_on(monkeypatch, seeds, *, crash=frozenset()):
-    """QuadriFlow children whose request carries one of `seeds` sleep instead of running (a hang); those of a
-    seed in `crash` die of a segmentation fault at once."""
+def _hang_on(monkeypatch, seeds, *, crash=frozenset(), runs=frozenset()):
+    """QuadriFlow children whose request carries one of `seeds`, or a (seed, target faces) of `runs`, sleep
+    instead of running (a hang); those of a seed in `crash` die of a segmentation fault at once."""
     import subprocess
     import sys
 
@@ -99,10 +99,11 @@ def _hang_on(monkeypatch, seeds, *, crash=frozenset()):
               "import numpy as np\n"
               "import os, signal\n"
               "data = sys.stdin.buffer.read()\n"
-              "seed = int(np.load(io.BytesIO(data))['seed'])\n"
+              "request = np.load(io.BytesIO(data))\n"
+              "seed, target = int(request['seed']), int(request['target_faces'])\n"
               f"if seed in {sorted(crash)}:\n"
               "    os.kill(os.getpid(), signal.SIGSEGV)\n"
-              f"if seed in {sorted(seeds)}:\n"
+              f"if seed in {sorted(seeds)} or (seed, target) in {sorted(runs)}:\n"
               "    time.sleep(600)\n"
               "sys.stdin = io.TextIOWrapper(io.BytesIO(data))\n"
               "runpy.run_module('cam.remesh.child', run_name='__main__')\n")
@@ -155,6 +156,24 @@ def test_a_run_beside_a_hang_that_gives_a_mesh_sets_the_pace(monkeypatch):
     assert re.fullmatch(r"seed 0, 300 faces: timed out after \d+ s, 4 times the quickest run's",
                         result.report["failed_attempts"][0])
     assert [c["seed"] for c in result.report["candidates"]] == [1, 2]
+
+
+def test_two_runs_that_hang_side_by_side_start_the_run_after_a_failure_beside_them(monkeypatch):
+    # Seeds 0 and 1 at the target hang side by side, so no run ever sets the pace; seed 1 at the nudged count,
+    # the run that follows a failure of seed 0, gives a mesh. Once both have run the stall time it starts beside
+    # them, sets the pace, and seed 0 stops at four times its time: a 50k-point Block cloud's remesh waited out
+    # two such runs' 300 s limit.
+    from cam.remesh import process
+
+    _hang_on(monkeypatch, set(), runs={(0, 300), (1, 300)})
+    monkeypatch.setattr(process, "_STALL_S", 1.0)
+    mesh = _box_triangles()
+    params = RemeshParams(target_faces=300, seed=0, attempts=3, candidates=1, timeout_s=120)
+    result = remesh_quads(mesh.vertices, mesh.faces, params, processes=2)
+    assert result.report["seed"] == 1 and result.report["quadriflow_target_faces"] == 288
+    assert result.report["attempts"] == 2
+    assert re.fullmatch(r"seed 0, 300 faces: timed out after \d+ s, 4 times the quickest run's",
+                        result.report["failed_attempts"][0])
 
 
 def _box_with_a_corner_cut_off():
