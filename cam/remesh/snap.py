@@ -56,7 +56,7 @@ from cam.remesh.chains import (
     distance_to_polyline,
     points_at,
 )
-from cam.remesh.check import inspect_quad_mesh
+from cam.remesh.check import QuadMeshReport, inspect_quad_mesh
 from cam.remesh.collapse import collapse_diagonals
 
 __all__ = ["Snapped", "snap_to_creases"]
@@ -64,7 +64,7 @@ __all__ = ["Snapped", "snap_to_creases"]
 # A path's vertices this far from their chain (in quad lengths) cost (1 + (d / _SPREAD)²) times the edge length.
 _SPREAD = 0.25
 # A path may run along two sides of one quad only where the quad's corner between them is this straight already,
-# or, where no path has none of those turns, where that quad is collapsed (its other two corners merged on the
+# or, for a chain with no such path, where that quad is then collapsed (its other two corners merged on the
 # chain); each such turn costs as much as this many quad lengths of path.
 _STRAIGHT_DEG = 150.0
 _COLLAPSE_COST = 1.0
@@ -215,7 +215,7 @@ def snap_to_creases(quad_vertices: np.ndarray, quads: np.ndarray, vertices: np.n
 
 
 def _collapse(new: np.ndarray, quads: np.ndarray, collapses: list[tuple[tuple, tuple[int, int, int]]],
-              before) -> tuple[np.ndarray, np.ndarray, set[tuple]]:
+              before: QuadMeshReport) -> tuple[np.ndarray, np.ndarray, set[tuple]]:
     """The layout with the pieces' quads collapsed (`cam.remesh.collapse`), piece by piece in order, and the
     pieces whose collapses give the mesh a defect it did not have (``before``: the layout's inspection) or
     change its genus; those are left out."""
