@@ -422,23 +422,24 @@ def _path(layout: _Layout, chain: Chain, va: int, vb: int, *, blocked: set[int],
 
 def _walk_back(layout: _Layout, state: tuple[int, int, bool], parent: dict
                ) -> tuple[list[int], list[tuple[int, int, int]]] | None:
-    """The path that ends in ``state`` and its collapses; None when a quad it collapses would drop one of its
-    own vertices, two of its collapses share a corner to drop, or a vertex would keep fewer than three edges
-    (each collapse takes one from the vertices before and after the turn)."""
-    path, turns = [state[1]], []
+    """The path that ends in ``state`` and its collapses; None when it collapses a quad and passes a vertex
+    twice, when a quad it collapses would drop one of its own vertices, when two of its collapses share a
+    corner to drop, or when a vertex would keep fewer than three edges (each collapse takes one from the
+    vertices before and after the turn)."""
+    states = [state]
     while state in parent:
-        if state[2]:
-            turns.append(state[0])
         state = parent[state]
-        path.append(state[1])
-    path = path[::-1]
-    at = {v: i for i, v in enumerate(path)}
+        states.append(state)
+    states.reverse()
+    path = [s[1] for s in states]
+    turns = [k - 1 for k, s in enumerate(states) if s[2]]  # a state (a, b, True) turned at a: path[k - 1]
+    if turns and len(set(path)) < len(path):
+        return None
     merged = []
     losses: dict[int, int] = {}
-    for v in turns:
-        i = at[v]
-        q, x = layout.across[(path[i - 1], v, path[i + 1])]
-        merged.append((q, v, x))
+    for i in turns:
+        q, x = layout.across[(path[i - 1], path[i], path[i + 1])]
+        merged.append((q, path[i], x))
         for u in (path[i - 1], path[i + 1]):
             losses[u] = losses.get(u, 0) + 1
     dropped = [x for _, _, x in merged]

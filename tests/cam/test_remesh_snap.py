@@ -127,3 +127,22 @@ def test_bad_input_names_what_it_saw():
         snap_to_creases(qv, qf + 100, tri.vertices, tri.faces)
     with pytest.raises(ValueError, match="gentle_angle_deg"):
         snap_to_creases(qv, qf, tri.vertices, tri.faces, crease_angle_deg=30.0, gentle_angle_deg=40.0)
+
+
+def _states(path: list[int], turned_at: set[int]) -> tuple[tuple[int, int, bool], dict]:
+    """The search's last state and parent links for a path, turning (a collapse) at the path positions given."""
+    states = [(-1, path[0], False)] + [(path[k - 1], path[k], k - 1 in turned_at) for k in range(1, len(path))]
+    return states[-1], dict(zip(states[1:], states[:-1], strict=True))
+
+
+def test_a_path_s_collapses_are_read_back_at_their_positions_and_a_path_that_passes_a_vertex_twice_has_none():
+    from cam.remesh import snap
+
+    gv, gf = quad_grid(3, 3)  # vertex (i, j) is 4 i + j; quad 4 is [5, 9, 10, 6]
+    layout = snap._Layout(gv, gf)
+    # 8, 9, 10, 6, 2 turns inside quad 4 at 10: its fourth corner 5 merges into 10
+    assert snap._walk_back(layout, *_states([8, 9, 10, 6, 2], {2})) == ([8, 9, 10, 6, 2], [(4, 10, 5)])
+    # the same turn on a path that comes back through 10 (straight on, 11, 10, 9) is refused
+    assert snap._walk_back(layout, *_states([8, 9, 10, 6, 7, 11, 10, 9, 13], {2})) is None
+    # without a collapse a path is read back as it runs
+    assert snap._walk_back(layout, *_states([8, 9, 10, 11], set())) == ([8, 9, 10, 11], [])
