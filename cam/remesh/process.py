@@ -33,9 +33,10 @@ _CHILD_GRACE_S = 30.0
 _HANG_FACTOR = 4.0
 _HANG_FLOOR_S = 15.0
 # While no run on a mesh has given a mesh, every run going has run this long (s) and a spare run is named, the spare
-# starts beside them. QuadriFlow's runs take 5-20 s on the bench's parts and on 50k-point clouds' meshes (one thin
-# plate about 70 s); two seeds once hung side by side on a cloud's mesh and the remesh waited out its 300 s limit
-# while a third seed then gave a mesh in 6 s. A spare that gives a mesh sets the pace, and the hung runs stop.
+# starts beside them. A whole remesh of three runs takes 8-78 s on bench/remesh.py's parts (one thin plate, abc5,
+# 316 s) and about 20 s on 50k-point clouds' meshes; two seeds once hung side by side on a cloud's mesh and the
+# remesh waited out its 300 s limit while a third seed then gave a mesh in 6 s. A spare that gives a mesh sets the
+# pace, and the hung runs stop; a spare beside runs that are merely slow only costs a core for a while.
 _STALL_S = 60.0
 
 
