@@ -246,9 +246,27 @@ def programs_digest(out: Path) -> str | None:
     return digest.hexdigest()
 
 
+def read_outcome(out: Path) -> dict:
+    """What the run made, beside its time: the layout's crease recall, the surfaces over the fit's tolerance,
+    verify's verdict and finished share of the reachable part (each None where its stage wrote nothing)."""
+    def load(name: str) -> dict:
+        try:
+            return json.loads((out / name).read_text())
+        except (OSError, ValueError):
+            return {}
+
+    remesh, surfaces, verify = load("remesh.json"), load("surfaces.json"), load("verify.json")
+    return {"crease_recall": remesh.get("crease_recall"),
+            "patches": len(surfaces["surfaces"]) if "surfaces" in surfaces else None,
+            "over_tolerance": len(surfaces["over_tolerance"]) if "over_tolerance" in surfaces else None,
+            "verify_passed": verify.get("passed"),
+            "finished_of_reachable": verify.get("finished_share_of_reachable")}
+
+
 def timed_run(args: list[str], code: dict, out: Path, tag: str) -> dict:
     run = run_once([*args, "--out", str(out)], code["env"], code["cwd"], tag)
     run["programs"] = programs_digest(out)
+    run["outcome"] = read_outcome(out)
     shutil.rmtree(out, ignore_errors=True)  # a 1M-point run's artifacts are large; the hash is kept
     return run
 
@@ -518,10 +536,26 @@ def _part_section(part: str, result: dict) -> list[str]:
     text = [f"## {part}", "", f"Input: `{result['input']}`{sets}.", "", *part_table(part, result), ""]
     if "programs" in result:
         text += [f"Programs (`program*.nc`), base against new: **{result['programs']}**.", ""]
+    text += outcome_lines(result)
     if not all(r["stage_peaks_reset"] for side in result["runs"].values() for r in side):
         text += ["The peak could not be reset here: a stage's peak MB is the run's peak so far.", ""]
     failures = _failures(result)
     return text + failures + ([""] if failures else [])
+
+
+def outcome_lines(result: dict) -> list[str]:
+    """One line per code: what its runs made (`read_outcome`), run by run."""
+    def one(o: dict) -> str:
+        recall = "–" if o.get("crease_recall") is None else f"{o['crease_recall']:.3f}"
+        over = "–" if o.get("patches") is None else f"{o['over_tolerance']} of {o['patches']}"
+        fin = o.get("finished_of_reachable")
+        verdict = {True: "passed", False: "not passed", None: "–"}[o.get("verify_passed")]
+        return (f"layout crease recall {recall}, surfaces over tolerance {over}, verify {verdict}"
+                + ("" if fin is None else f" ({100 * fin:.2f} % of the reachable part finished)"))
+
+    lines = [f"- {side}: " + "; ".join(one(r["outcome"]) for r in runs)
+             for side, runs in result["runs"].items() if runs and all("outcome" in r for r in runs)]
+    return ["What the runs made, run by run:", "", *lines, ""] if lines else []
 
 
 def write_report(report: dict, path: Path) -> None:
