@@ -243,13 +243,19 @@ def _move_onto_planes(verts, faces, cross, planes):
     moved = planes["ok"].copy()
     new_verts = verts.copy()
     new_verts[moved] = planes["foot"][moved]
-    # A move that turns a face over (several bevel vertices landing on the same plane out of
-    # order) is undone; undoing can turn a neighbour, hence the rounds (each undoes at least one
-    # move, so they end).
+    # (Several bevel vertices landing on the same plane out of order turn faces over.)
+    return _undo_turning_moves(verts, new_verts, faces, cross, moved)
+
+
+def _undo_turning_moves(verts, new_verts, faces, cross, moved):
+    """The moves of the vertices `moved` (v,) from `verts` to `new_verts` (v, 3), less those that turn a
+    face over against its cross product `cross` (f, 3) or squash it to under a hundredth of its area (two
+    ends landing together); returns the vertices, bool (v,) still moved and the faces' new cross products.
+    Undoing can turn a neighbour, hence the rounds (each undoes at least one move, so they end)."""
+    moved = moved.copy()
     while True:
         t = new_verts[faces]
         moved_normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        # Also undone: a face squashed to under a hundredth of its area (two ends landing together).
         flipped = (moved_normal * cross).sum(1) <= 0.01 * (cross * cross).sum(1)
         back = np.zeros(len(verts), dtype=bool)
         back[faces[flipped].ravel()] = True
@@ -376,8 +382,8 @@ def _snap_near_ends(verts, faces, face_normal, a, b, pn, pd, moved, reach):
     line of its own plane and the other end's goes to its nearest point there (within its own plane,
     so the faces it shares with that plane stay on it); of an edge's two ends the nearer, and a
     vertex next to several lines takes its shortest move. A move that turns a face over or squashes
-    it to under a hundredth of its area is undone (in rounds, as `_move_onto_planes`). Returns the
-    vertices, bool (v,) snapped and the faces' cross products (f, 3) after the moves.
+    it is undone (`_undo_turning_moves`). Returns the vertices, bool (v,) snapped and the faces' cross
+    products (f, 3) after the moves.
     """
     snapped = np.zeros(len(verts), dtype=bool)
     to_a = _nearest_on_line(verts[a], pn[a], pd[a], pn[b], pd[b])
@@ -399,17 +405,7 @@ def _snap_near_ends(verts, faces, face_normal, a, b, pn, pd, moved, reach):
     new_verts = verts.copy()
     new_verts[end[first]] = target[first]
     snapped[end[first]] = True
-    while True:
-        t = new_verts[faces]
-        cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        bad = (cross * face_normal).sum(1) <= 0.01 * (face_normal * face_normal).sum(1)
-        back = np.zeros(len(verts), dtype=bool)
-        back[faces[bad].ravel()] = True
-        back &= snapped
-        if not back.any():
-            return new_verts, snapped, cross
-        snapped &= ~back
-        new_verts[back] = verts[back]
+    return _undo_turning_moves(verts, new_verts, faces, face_normal, snapped)
 
 
 def _triangulate(faces, inverse, split, n_verts):
