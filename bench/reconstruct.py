@@ -105,6 +105,15 @@ def sharp_edge_samples(mesh: trimesh.Trimesh, step: float) -> np.ndarray:
     return np.concatenate(out)
 
 
+def crease_graph_defects(mesh: trimesh.Trimesh, angle_deg: float = 60.0) -> tuple[int, int]:
+    """Vertices with one sharp edge (loose ends) and with three or more (branches) in the graph of the mesh's
+    edges whose faces' normals differ by over `angle_deg` (QuadriFlow's sharp edges): a clean crease is a
+    chain of vertices with two, ending only at corners."""
+    edges = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(angle_deg)]
+    degree = np.bincount(edges.ravel(), minlength=len(mesh.vertices))
+    return int((degree == 1).sum()), int((degree >= 3).sum())
+
+
 def evaluate(gt: trimesh.Trimesh, verts, faces, *, n_samples=100_000, seed=0, gt_dist=None, band=None,
              workers=2):
     """Chamfer, Hausdorff (relative to gt diagonal), sharp-edge normal error (deg), watertight.
@@ -134,9 +143,10 @@ def evaluate(gt: trimesh.Trimesh, verts, faces, *, n_samples=100_000, seed=0, gt
         sharp_deg = float(ang.mean()) if len(ang) else float("nan")
     else:
         sharp_deg = float("nan")
+    ends, branches = crease_graph_defects(rec)
     return {"chamfer": float(chamfer), "hausdorff": float(hausdorff), "sharp_normal_deg": sharp_deg,
             "watertight": bool(rec.is_watertight and rec.is_winding_consistent), "faces": len(faces),
-            "worst_at": [float(x) for x in worst_at]}
+            "worst_at": [float(x) for x in worst_at], "crease_ends": ends, "crease_branches": branches}
 
 
 # --- clouds ----------------------------------------------------------------------------------
