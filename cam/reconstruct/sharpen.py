@@ -294,9 +294,9 @@ def _split_crossing_edges(verts, faces, face_normal, pn, pd, moved, cos_crease):
     left where it was keeps the crease off its vertex, a notch that turns the crease's edge chain
     aside (on a 50k-point Fandisk cloud, hundreds of spurs and branches that QuadriFlow's sharp
     edges then followed). The other candidates are split at the point of the crease line nearest
-    their midpoint, where that point lies within 0.6 of the edge's length of it (`_crease_points`) and
-    between a tenth and nine tenths along. Faces whose children would turn against the parent's normal keep their edges
-    whole (and so do their neighbours across those edges).
+    their midpoint, where that point lies within 0.6 of the edge's length of it (`_crease_points`)
+    and between a tenth and nine tenths along. Faces whose children would turn against the parent's
+    normal keep their edges whole (and so do their neighbours across those edges).
 
     Returns the vertices (the input's, some snapped, then the split points), the faces, the number
     of edges split and of vertices snapped.
@@ -309,9 +309,10 @@ def _split_crossing_edges(verts, faces, face_normal, pn, pd, moved, cos_crease):
     cand = (moved[a] | moved[b]) & ((pn[a] * pn[b]).sum(1) <= cos_crease)
     snapped = np.zeros(len(verts), dtype=bool)
     todo, reach = cand, SNAP
-    # Then once more for the splits refused for a child left flat or turned over: where the crease
-    # point lies on the line through an end and its neighbour (a lattice line parallel to the face
-    # that a box's edge passes a quarter of a cell from), that end is moved onto the crease instead.
+    # First the ends within SNAP of an edge's length of the crease; then, once more, an end of each split
+    # refused for a child left flat or turned over, wherever along the edge: the crease point lies on
+    # the line through that end and a neighbour (a lattice line parallel to the face, where a box's
+    # edge passes a quarter of a cell from the lattice), so the end itself belongs on the crease.
     for last in (False, True):
         length = np.linalg.norm(verts[b[todo]] - verts[a[todo]], axis=1)
         verts, more, face_normal = _snap_near_ends(verts, faces, face_normal, a[todo], b[todo], pn, pd,
