@@ -9,7 +9,9 @@ per run: wall time from start to exit and the run's peak resident memory. Median
 
 With --base REV the same parts also run on the code of revision REV (a `git worktree` under /tmp, put
 first on PYTHONPATH), interleaved with the new code's runs (base, new, base, new ...) so that other load
-on the machine hits both alike; the programs (`program*.nc`) of both are compared byte for byte. The new
+on the machine hits both alike; the programs (`program*.nc`) of both are compared byte for byte, and each run's
+outcome is listed (the layout's crease recall, the surfaces over the fit's tolerance, verify's verdict and
+finished share), so that a change that alters the result shows what it did beside its time. The new
 code is this working tree, uncommitted changes included (the report says if it changed during the run).
 --profile adds one run of the new code per part under py-spy and lists, per stage, where its samples went.
 --scaling times Fandisk ×10 clouds of 50k, 200k and 1M points at h = 0.16 and 0.02 mm (new code, one run
