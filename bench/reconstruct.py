@@ -109,7 +109,9 @@ def crease_graph_defects(mesh: trimesh.Trimesh, angle_deg: float = 60.0) -> tupl
     """Vertices with one sharp edge (loose ends) and with three or more (branches) in the graph of the mesh's
     edges whose faces' normals differ by over `angle_deg` (QuadriFlow's sharp edges): a clean crease is a
     chain of vertices with two, ending only at corners."""
-    edges = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(angle_deg)]
+    from cam.remesh.creases import crease_graph
+
+    edges = crease_graph(mesh.vertices, mesh.faces, angle_deg).edges
     degree = np.bincount(edges.ravel(), minlength=len(mesh.vertices))
     return int((degree == 1).sum()), int((degree >= 3).sum())
 

@@ -35,6 +35,8 @@ VOXEL = 0.75
 NEIGHBOURS = 64
 # An edge end closer to the crease than this share of the edge is moved onto it (not split next to it).
 SNAP = 0.3
+# A split's crease point lies within this share of the edge's length of its midpoint (see `_crease_points`).
+NEAR = 0.6
 
 
 def sharpen_creases(
@@ -294,7 +296,7 @@ def _split_crossing_edges(verts, faces, face_normal, pn, pd, moved, cos_crease):
     left where it was keeps the crease off its vertex, a notch that turns the crease's edge chain
     aside (on a 50k-point Fandisk cloud, hundreds of spurs and branches that QuadriFlow's sharp
     edges then followed). The other candidates are split at the point of the crease line nearest
-    their midpoint, where that point lies within 0.6 of the edge's length of it (`_crease_points`)
+    their midpoint, where that point lies within `NEAR` of the edge's length of it (`_crease_points`)
     and between a tenth and nine tenths along. Faces whose children would turn against the parent's
     normal keep their edges whole (and so do their neighbours across those edges).
 
@@ -349,7 +351,7 @@ def _split_whole_faces(verts, faces, inverse, face_normal, split, point):
 def _crease_points(verts, a, b, pn, pd):
     """Per edge (a, b) (k,): the point (k, 3) of its ends' planes' crease line nearest its midpoint, where
     that point falls along the edge (k,) (0 at a, 1 at b) and bool (k,) it lies near enough to the
-    edge to split it there (within 0.6 of its length of the midpoint)."""
+    edge to split it there (within `NEAR` of its length of the midpoint)."""
     mid = 0.5 * (verts[a] + verts[b])
     point = _nearest_on_line(mid, pn[a], pd[a], pn[b], pd[b])
     length = np.linalg.norm(verts[b] - verts[a], axis=1)
@@ -361,7 +363,7 @@ def _crease_points(verts, a, b, pn, pd):
     # Fandisk cloud's mesh, half the length left 648 loose ends in its sharp-edge graph, six tenths 280).
     # Wider bounds let splits through farther from the edge: abc3's Hausdorff distance grew with them
     # (0.0088 of the diagonal at 0.6, 0.0092 at 0.75, 0.0096 at 1).
-    return point, along, np.linalg.norm(point - mid, axis=1) <= 0.6 * length
+    return point, along, np.linalg.norm(point - mid, axis=1) <= NEAR * length
 
 
 def _nearest_on_line(p, na, da, nb, db):
