@@ -15,8 +15,11 @@ watertight mesh stays watertight; the crease becomes a chain of mesh edges.
 
 Smooth curvature is left alone: a vertex is only moved when exactly two
 clusters of flat faces surround it, their planes meet at more than
-``crease_deg`` and the vertex lies within one feature size of them. Corners
-(three or more clusters) keep their bevel.
+``crease_deg`` and the vertex lies within one feature size of them. Where a
+third cluster is in reach (an edge running into a corner), the two are taken
+from the faces nearer than the third's nearest, so an edge is sharp up to a
+few cells from its corner; the corner itself (three clusters among the
+nearest faces) keeps its bevel.
 """
 
 from __future__ import annotations
@@ -103,10 +106,11 @@ def sharpen_creases(
         return verts.copy(), faces.copy(), {"moved": 0, "split": 0, "snapped": 0}
     check_cancel = check_cancel or (lambda: None)
     cross, area, normal, centre = _face_geometry(verts, faces)
-    flat = _flat_faces(centre, normal, area, feature_size, np.cos(np.radians(flat_deg)), workers)
+    cos_flat = np.cos(np.radians(flat_deg))
+    flat = _flat_faces(centre, normal, area, feature_size, cos_flat, workers)
     check_cancel()
     planes, on_a = _vertex_planes(verts, faces, centre, normal, area, flat, feature_size, reach * feature_size,
-                                  np.cos(np.radians(cluster_deg)), np.cos(np.radians(crease_deg)), workers)
+                                  np.cos(np.radians(cluster_deg)), np.cos(np.radians(crease_deg)), cos_flat, workers)
     check_cancel()
     new_verts, moved, moved_normal = _move_onto_planes(verts, faces, cross, planes)
     pn, pd = _carried_planes(faces, cross, new_verts, planes, on_a, moved)
@@ -140,7 +144,8 @@ def _flat_faces(centre, normal, area, radius, cos_flat, workers, k=32, chunk=100
     return flat & (area > 0)
 
 
-def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cluster, cos_crease, workers):
+def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cluster, cos_crease, cos_flat,
+                   workers):
     """Per vertex: the two face planes around it and the nearest point of the sharp surface they bound.
 
     Returns a dict of arrays (na, da, nb, db, foot, ok) and bool (v,) ``on_a`` (the foot is on plane a).
@@ -157,7 +162,7 @@ def _vertex_planes(verts, faces, centre, normal, area, flat, size, reach, cos_cl
     n = normal[nbr]  # (m, k, 3), nearest first
     w = np.where(valid, area[nbr], 0.0)
     c = centre[nbr]
-    in1, in2, good = _two_clusters(n, valid, cos_cluster)
+    in1, in2, good = _two_clusters(n, valid, cos_cluster, cos_crease, cos_flat)
     na, da, _ = _fit_plane(n, w, c, in1)
     nb, db, cb = _fit_plane(n, w, c, in2)
     good &= (na * nb).sum(1) <= cos_crease
@@ -191,9 +196,35 @@ def _flat_neighbours(points, centre, flat_ids, reach, workers):
     return valid, flat_ids[j]
 
 
-def _two_clusters(n, valid, cos_cluster):
+def _two_clusters(n, valid, cos_cluster, cos_crease, cos_flat):
     """The neighbours (m, k) around the nearest one's normal and around the nearest other one's, and
-    bool (m,): exactly these two clusters, with at least three faces each."""
+    bool (m,): exactly these two clusters, with at least three faces each.
+
+    Where a third cluster is among the neighbours (a corner a few feature sizes off, or curvature the
+    flat test let through), the clusters are taken again from the neighbours nearer than its first face
+    alone: along a crease up to a corner, the two faces' planes are the nearest ones."""
+    in1, in2, good = _clusters_of(n, valid, cos_cluster)
+    third = valid & ~in1 & ~in2
+    first_third = np.where(third.any(1), third.argmax(1), valid.shape[1])  # neighbours are nearest first
+    nearer = valid & (np.arange(valid.shape[1])[None, :] < first_third[:, None])
+    near1, near2, near_good = _clusters_of(n, nearer, cos_cluster)
+    # Only at a third face, not on curvature (a cylinder beside a plane, whose nearest facets would pass for a
+    # second plane): the rest of the neighbours are one cluster of their own, at a crease to both planes.
+    rows = np.arange(len(n))
+    first = n[rows, np.minimum(first_third, valid.shape[1] - 1)]
+    one_face = (~third | (np.einsum("mkc,mc->mk", n, first) >= cos_cluster)).all(1) & (third.sum(1) >= 3)
+    for cluster in (near1, near2):
+        mean = (n * cluster[:, :, None]).sum(1)
+        mean /= np.maximum(np.linalg.norm(mean, axis=1), 1e-300)[:, None]
+        one_face &= (mean * first).sum(1) <= cos_crease
+        # Fewer faces fit these planes: each must be flat (a rounded edge's facets, 20 degrees apart, are not).
+        one_face &= (~cluster | (np.einsum("mkc,mc->mk", n, mean) >= cos_flat)).all(1)
+    retry = ~good & near_good & one_face
+    return (np.where(retry[:, None], near1, in1), np.where(retry[:, None], near2, in2), good | retry)
+
+
+def _clusters_of(n, valid, cos_cluster):
+    """`_two_clusters` on the neighbours `valid` (m, k) as they are."""
     rows = np.arange(len(n))
 
     def first(mask):
@@ -204,7 +235,6 @@ def _two_clusters(n, valid, cos_cluster):
     has2, s2 = first(valid & ~in1)
     in2 = valid & ~in1 & (np.einsum("mkc,mc->mk", n, n[rows, s2]) >= cos_cluster)
     rest = valid & ~in1 & ~in2
-    # A third cluster (a corner, or curvature the flat test let through) leaves the vertex alone.
     good = has1 & has2 & (in1.sum(1) >= 3) & (in2.sum(1) >= 3) & (rest.sum(1) <= 0.05 * valid.sum(1))
     return in1, in2, good
 

@@ -108,6 +108,26 @@ def test_box_edges_become_simple_chains_of_mesh_edges(half):
     assert np.sort(gap[on_chain], axis=1)[:, 1].max() < 1e-12  # on a box edge
 
 
+@pytest.mark.parametrize("half", [tuple(HALF), (0.97, 0.73, 0.61), (1.01, 0.79, 0.59)])
+def test_edges_are_sharp_up_to_three_cells_from_the_corners(half):
+    """Along an edge up to a corner, the two faces' planes are the nearest ones: the bevel is undone there too.
+
+    The planes' neighbourhood reaches several feature sizes, so a third face enters it well before the
+    corner; taken whole it left the last four to eight cells of every edge bevelled (a quarter of a cell
+    deep on two of these boxes). Every vertex farther than three cells from the corners lies on the box.
+    """
+    half = np.asarray(half)
+    v, f = _extract(lambda x, y, z: _box_sdf(x, y, z, half))
+    v2, f2, _ = sharpen_creases(v, f, feature_size=2 * H)
+    assert is_watertight(f2)
+    depth = (half - np.abs(v2)).min(axis=1)  # below the nearest face of the box
+    from_corner = np.linalg.norm(np.abs(v2) - half, axis=1)
+    assert (from_corner <= 3 * H).sum() <= 8 * 30  # about 25 vertices at each corner are left as they are
+    assert depth[from_corner > 3 * H].max() < 1e-12
+    _, area, _ = _face_data(v2, f2)
+    assert area.min() > 1e-3 * _face_data(v, f)[1].min()
+
+
 def test_vertices_next_to_a_crease_are_moved_onto_it():
     """Where the box's edges pass a quarter of a cell from the lattice, vertices next to them are moved
     onto the edge, not split beside it; no face turns over or becomes a sliver."""
