@@ -3,9 +3,11 @@
 Every iteration of the MeshTGV filter solves two fixed factorisations for the three components of the
 normals (and of the auxiliary field), and those solves are most of its time. SuperLU's solve holds the GIL,
 so a thread does not help; a child forked once the factorisations are made shares them (copy-on-write, and
-nothing writes them) and solves the last column while this process solves the others. SuperLU solves the
-columns of a right-hand side one after another, so each column's answer is bit for bit what one call with
-all of them gives, and the filter's result is that of one process.
+nothing writes them) and solves the last column while this process solves the others. One process splits
+the columns the same way (the others in one call, then the last): SuperLU's answer for a column can depend on
+the columns solved beside it (SciPy 1.17's solves them in pairs, so the first of two columns solved together
+differs in its last bits from the same column solved alone), and the filter's result is that of one process
+only when both make the same calls.
 
 The child reads a factor's number from a pipe and its column from memory shared with this process, writes
 the answer back there and one byte of reply; it ends when the pipe closes (this process left the block, or
@@ -23,7 +25,7 @@ from typing import Protocol
 
 import numpy as np
 
-__all__ = ["Factor", "solves_in_two"]
+__all__ = ["Factor", "solves_in_two", "split_solve"]
 
 
 class Factor(Protocol):
@@ -46,15 +48,16 @@ def solves_in_two(factors: Sequence[Factor], *, processes: int) -> Iterator[list
     factors : sequence of Factor
         The factorisations, made before the block (the child inherits them).
     processes : int
-        Processors the caller may use: below 2, the functions are the factors' own `solve`.
+        Processors the caller may use: below 2, every solve runs in this process.
 
     Yields
     ------
     list of callable
-        solve(rhs (n, k) float64) -> (n, k) float64, bit for bit `factor.solve(rhs)`.
+        solve(rhs (n, k) float64) -> (n, k) float64: `split_solve` of the factor, bit for bit, wherever its
+        last column was solved.
     """
     if processes < 2 or not factors:
-        yield [f.solve for f in factors]
+        yield [_in_this_process(f) for f in factors]
         return
     sizes = [int(f.shape[0]) for f in factors]
     shared = [mmap.mmap(-1, 16 * n) for n in sizes]  # anonymous and shared: the child sees the same pages
@@ -67,7 +70,7 @@ def solves_in_two(factors: Sequence[Factor], *, processes: int) -> Iterator[list
     except OSError:
         for fd in (task_r, task_w, reply_r, reply_w):
             os.close(fd)
-        yield [f.solve for f in factors]
+        yield [_in_this_process(f) for f in factors]
         return
     if pid == 0:
         os.close(task_w)
@@ -83,16 +86,14 @@ def solves_in_two(factors: Sequence[Factor], *, processes: int) -> Iterator[list
         def solve(rhs: np.ndarray) -> np.ndarray:
             rhs = np.asarray(rhs, dtype=np.float64)
             if not state["child"] or rhs.ndim != 2 or rhs.shape[1] < 2:
-                return factor.solve(rhs)
+                return split_solve(factor, rhs)
             columns[k][:] = rhs[:, -1]
             os.write(task_w, bytes([k]))
             head = factor.solve(np.ascontiguousarray(rhs[:, :-1]))
             if os.read(reply_r, 1) != _OK:
                 state["child"] = False  # it failed or is gone: every solve runs here from now on
-                return factor.solve(rhs)
-            out = np.empty(rhs.shape, order="F")  # the layout SuperLU's solve returns
-            out[:, :-1], out[:, -1] = head, answers[k]
-            return out
+                return split_solve(factor, rhs)
+            return _joined(head, answers[k])
 
         return solve
 
@@ -104,6 +105,38 @@ def solves_in_two(factors: Sequence[Factor], *, processes: int) -> Iterator[list
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
         os.waitpid(pid, 0)
+
+
+def split_solve(factor: Factor, rhs: np.ndarray) -> np.ndarray:
+    """`factor.solve(rhs)` made as `solves_in_two` makes it: all columns but the last in one call, the last alone.
+
+    Parameters
+    ----------
+    factor : Factor
+        The factorisation, n x n.
+    rhs : ndarray, shape (n,) or (n, k), float64
+        Right-hand sides; (n,) and (n, 1) are solved in one call.
+
+    Returns
+    -------
+    ndarray, the shape of `rhs`, float64
+    """
+    rhs = np.asarray(rhs, dtype=np.float64)
+    if rhs.ndim != 2 or rhs.shape[1] < 2:
+        return factor.solve(rhs)
+    return _joined(factor.solve(np.ascontiguousarray(rhs[:, :-1])), factor.solve(np.ascontiguousarray(rhs[:, -1])))
+
+
+def _in_this_process(factor: Factor) -> Callable[[np.ndarray], np.ndarray]:
+    """The factor's solve in this process, its columns split as the child's would be."""
+    return lambda rhs: split_solve(factor, rhs)
+
+
+def _joined(head: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """(n, k): the solved columns `head` (n, k - 1) and `last` (n,), in the layout SuperLU's solve returns."""
+    out = np.empty((head.shape[0], head.shape[1] + 1), order="F")
+    out[:, :-1], out[:, -1] = head, last
+    return out
 
 
 def _serve(factors, columns, answers, task_r: int, reply_w: int) -> None:
