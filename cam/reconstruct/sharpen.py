@@ -16,10 +16,10 @@ watertight mesh stays watertight; the crease becomes a chain of mesh edges.
 Smooth curvature is left alone: a vertex is only moved when exactly two
 clusters of flat faces surround it, their planes meet at more than
 ``crease_deg`` and the vertex lies within one feature size of them. Where a
-third cluster is in reach (an edge running into a corner), the two are taken
-from the faces nearer than the third's nearest, so an edge is sharp up to a
-few cells from its corner; the corner itself (three clusters among the
-nearest faces) keeps its bevel.
+third face is in reach (an edge running into a corner), the two planes are
+fitted from the faces nearer than the third's nearest, if they are flat, so an
+edge is sharp up to a few cells from its corner; the corner itself (three
+clusters among the nearest faces) keeps its bevel.
 """
 
 from __future__ import annotations
@@ -200,9 +200,10 @@ def _two_clusters(n, valid, cos_cluster, cos_crease, cos_flat):
     """The neighbours (m, k) around the nearest one's normal and around the nearest other one's, and
     bool (m,): exactly these two clusters, with at least three faces each.
 
-    Where a third cluster is among the neighbours (a corner a few feature sizes off, or curvature the
-    flat test let through), the clusters are taken again from the neighbours nearer than its first face
-    alone: along a crease up to a corner, the two faces' planes are the nearest ones."""
+    Where a third cluster is among the neighbours and is one face at a crease to both (a corner a few
+    feature sizes off), the clusters are taken again from the neighbours nearer than its first face alone,
+    if both are flat: along a crease up to a corner, the two faces' planes are the nearest ones. A third
+    cluster that is not one face (curvature the flat test let through) leaves the vertex alone."""
     in1, in2, good = _clusters_of(n, valid, cos_cluster)
     third = valid & ~in1 & ~in2
     first_third = np.where(third.any(1), third.argmax(1), valid.shape[1])  # neighbours are nearest first
