@@ -233,6 +233,7 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
     cp = _start_net(system, P, Nm, u, v, ku, kv, control_points, anchors=anchors, anchor_weight=anchor_weight,
                     param_weight=param_weight, smoothing_mm2=smoothing_mm2, degree=degree)
     best = best_feet = None
+    gram, gram_of = None, None  # the last step's Gram blocks, and the fit they were built from
     stalls, damping = 0, 0.0
     # A pulled border settles like a contact problem (samples come in and out of reach), so it gets
     # more patience before the iteration is called stuck.
@@ -258,11 +259,15 @@ def fit_surface(points: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.nd
             break
         base, base_feet = (best, best_feet) if verdict == "folded" else (fit, feet)
         lam = smoothing_mm2 * (smoothing_floor if warm else max(smoothing_decay ** (it + 1), smoothing_floor))
-        rows = _step_rows(P, Nm, base, base_feet, n=n, clamped_samples=clamped_samples, pull_weight=pull_weight,
-                          pull_sides=pull_sides, mesh_weight=mesh_weight, normal_weight_mm=normal_weight_mm,
-                          kink_weight_mm=kink_weight_mm, lengths_mm=lengths_mm, anchors=anchors,
-                          anchor_weight=anchor_weight, param_weight=param_weight, degree=degree)
-        cp = system.solve(rows, lam, base.control_points, damping)
+        if gram_of is not base:
+            # A step taken again from the same fit (after a fold) has the same terms: only lam and
+            # the damping differ, so its Gram blocks are the last step's.
+            gram, gram_of = system.gram(_step_rows(
+                P, Nm, base, base_feet, n=n, clamped_samples=clamped_samples, pull_weight=pull_weight,
+                pull_sides=pull_sides, mesh_weight=mesh_weight, normal_weight_mm=normal_weight_mm,
+                kink_weight_mm=kink_weight_mm, lengths_mm=lengths_mm, anchors=anchors, anchor_weight=anchor_weight,
+                param_weight=param_weight, degree=degree)), base
+        cp = system.solve_gram(gram, lam, base.control_points, damping)
         u, v = base.u, base.v
     return best
 

@@ -143,6 +143,23 @@ class NormalEquations:
         ndarray, shape (nu, nv, 3), float64
             The new control net, mm; fixed points as in `cp_current`.
         """
+        return self.solve_gram(self.gram(rows), lam, cp_current, damping)
+
+    def gram(self, rows: list) -> tuple[np.ndarray, np.ndarray]:
+        """The row sets' Gram blocks and right-hand side, what `solve_gram` solves with any lam and damping.
+
+        Parameters
+        ----------
+        rows : list
+            Row sets, as `solve` takes them.
+
+        Returns
+        -------
+        band : ndarray, shape (nu nv, (2p + 1)(2q + 1), 6), float64
+            The six coordinate-pair blocks in band storage (`cam.fit._gramkernel`).
+        rhs : ndarray, shape (3 nu nv,), float64
+            Σ w target e_i B per coordinate i, x then y then z.
+        """
         size = self.ncp
         band = np.zeros((size, self.width, len(_PAIRS)))
         rhs = np.zeros(3 * size)
@@ -153,6 +170,12 @@ class NormalEquations:
                                                             minlength=size)
             weights = np.stack([sum(w * e[:, i] * e[:, j] for e, w, _ in terms) for i, j in _PAIRS], axis=1)
             accumulate_grams(cols, vals, weights, self.degree, band)
+        return band, rhs
+
+    def solve_gram(self, gram: tuple[np.ndarray, np.ndarray], lam: float, cp_current: np.ndarray,
+                   damping: float = 0.0) -> np.ndarray:
+        """`solve` from the row sets' `gram` (unchanged): a step taken again with other weights reuses it."""
+        band, rhs = gram
         flat = band.ravel()
         data = flat[self.src] + lam * self.h
         c_all = cp_current.reshape(-1, 3).T.ravel()  # [x..., y..., z...]

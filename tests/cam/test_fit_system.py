@@ -73,6 +73,24 @@ def test_solution_matches_the_dense_normal_equations(border_fixed, damping, knot
     np.testing.assert_array_equal(got[fixed], cp[fixed])
 
 
+def test_one_gram_serves_steps_of_any_smoothing_and_damping():
+    # fit_surface takes a folded step again from the same fit with the Gram blocks of the last: each solve
+    # from them must be the one the rows themselves give, and leave them as it found them.
+    rng = np.random.default_rng(5)
+    nu, nv = KU.size - 4, KV.size - 4
+    fixed = np.zeros((nu, nv), dtype=bool)
+    fixed[0] = True
+    cp = rng.normal(size=(nu, nv, 3))
+    rows = [(surface_rows(KU, KV, u, v, du=du), terms) for (u, v, du), terms in _row_sets(rng)]
+    system = NormalEquations(KU, KV, fixed, lengths_mm=(30.0, 20.0), degree=(3, 3))
+    gram = system.gram(rows)
+    kept = [a.copy() for a in gram]
+    for lam, damping in ((0.05, 0.0), (0.005, 1.0), (0.005, 10.0)):
+        np.testing.assert_array_equal(system.solve_gram(gram, lam, cp, damping), system.solve(rows, lam, cp, damping))
+    for a, b in zip(gram, kept):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_a_control_point_nothing_reaches_keeps_its_value():
     # Rows only on u < 0.2 and no bending: the control points whose functions live on u > 0.5 see
     # nothing, so the weak-diagonal hold keeps them where they were.
