@@ -131,7 +131,7 @@ def remesh_quads(
           until then every run is at the target, so the layouts compared are of
           one density.
         - ``attempts``: most QuadriFlow runs. When none passed and some failed on
-          triangular holes that cannot be paired, one more run at a quarter of the
+          odd holes that cannot be paired, one more run at a quarter of the
           faces fills them and splits every face into four quads
           (:func:`cam.remesh.holes.split_into_quads`); the report says ``"split": true``.
         - ``candidates``: runs that pass the checks to compare: attempts stop once this many
@@ -276,10 +276,10 @@ def _run_attempts(mesh: _Input, params: RemeshParams, *, processes: int, progres
 
     try:
         # After the plain attempts, one more at a quarter of the faces may split every face into quads to close
-        # triangular holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
+        # odd holes that cannot be paired (QuadriFlow leaves them on some marching-cubes meshes).
         for attempt in range(params.attempts + 1):
             split = attempt == params.attempts
-            if split and (accepted or not any("triangular holes" in f for f in failures)):
+            if split and (accepted or not any("odd holes" in f for f in failures)):
                 break
             runs = attempt + 1
             seed, target = _seed_and_target(params, attempt, after_failure=bool(failures), split=split)

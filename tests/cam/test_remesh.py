@@ -11,6 +11,7 @@ from cam.io.quads import read_quad_obj, write_ply_quads_colored, write_quad_obj
 from cam.mesh.closest import closest_on_triangles, closest_points, mesh_index
 from cam.mesh.quads import face_areas, face_normals, quad_topology, vertex_fans
 from cam.remesh.check import boundary_loops, inspect_quad_mesh
+from cam.remesh.holes import pair_odd_holes
 from cam.remesh.repair import repair_quad_mesh
 from tests.quadshapes import quad_box, quad_grid, quad_torus
 
@@ -153,8 +154,87 @@ def test_repair_pairs_triangular_holes_along_a_strip():
     v2, f2, done = repair_quad_mesh(v, f)
     check = inspect_quad_mesh(v2, f2)
     assert check.problems == () and check.boundary_loop_lengths == () and check.euler_characteristic == 2
-    assert any("triangular" in d for d in done)
+    assert any("closed 2 odd hole(s) in pairs (2 of 3 edges)" in d for d in done)
     assert len(f2) == len(f) + 2 + 4  # two triangles became quads, a strip of 4 quads was split in two
+
+
+def _open_pentagonal_prism(k):
+    """The sides of a pentagonal prism, k quads long, one end closed by a quad over four of its corners: a
+    triangular hole at that end, a pentagonal one at the other."""
+    ring = np.stack([np.cos(2 * np.pi * np.arange(5) / 5), np.sin(2 * np.pi * np.arange(5) / 5)], axis=1)
+    v = np.array([[x, *p] for x in range(k + 1) for p in ring], dtype=float)
+    f = [[5 * i + j, 5 * (i + 1) + j, 5 * (i + 1) + (j + 1) % 5, 5 * i + (j + 1) % 5] for i in range(k) for j in range(5)]
+    f.append([5 * k + 3, 5 * k + 2, 5 * k + 1, 5 * k])  # against the sides' end edges, as a closed part runs
+    return v, np.array(f)
+
+
+def test_a_triangular_and_a_pentagonal_hole_are_paired_and_then_closed():
+    # QuadriFlow leaves odd holes other than triangles too (3 and 5, 3 and 7 edges on the README example's
+    # dome): the strip between two gives each one more corner, and the hole of now six edges takes two quads.
+    v, f = _open_pentagonal_prism(3)
+    assert sorted(inspect_quad_mesh(v, f).boundary_loop_lengths) == [3, 5]
+    v2, f2, done = repair_quad_mesh(v, f)
+    check = inspect_quad_mesh(v2, f2)
+    assert check.problems == () and check.boundary_loop_lengths == () and check.euler_characteristic == 2
+    assert any("closed 2 odd hole(s) in pairs (1 of 3 edges, 1 of 5 edges)" in d for d in done)
+    assert "closed 1 hole(s) of 6 edges with 2 quad(s) each" in done
+    # The caps are flat and the new corners on their edges: the prism's volume, 3 x the pentagon's area.
+    assert abs(_signed_volume(v2, f2)) == pytest.approx(3 * 2.5 * np.sin(2 * np.pi / 5))
+
+
+def test_a_hole_of_eight_edges_is_closed_with_three_quads():
+    # What a hole of 7 edges becomes once paired (3 and 7 on the README example's dome, seed 0).
+    v, f = quad_box((3, 3, 3))
+    row = [k for k in range(len(f)) if np.all(v[f[k], 0] == 0.0) and v[f[k], 1].max() < 0.5]
+    assert len(row) == 3  # a row of three quads on the side x = 0
+    v2, f2, done = repair_quad_mesh(v, np.delete(f, row, axis=0))
+    assert "closed 1 hole(s) of 8 edges with 3 quad(s) each" in done
+    check = inspect_quad_mesh(v2, f2)
+    assert check.problems == () and check.boundary_loop_lengths == ()
+    assert len(f2) == len(f) and _signed_volume(v2, f2) == pytest.approx(_signed_volume(v, f))
+
+
+def _twisted_torus():
+    """A 6 x 4 quad torus whose first two quads are split along another diagonal of the hexagon they make: one
+    strip of quads then runs through both of them twice, once each way."""
+    v, f = quad_torus(6, 4)
+    (p, q, r, s), (_, _, t, u) = f[0].tolist(), f[1].tolist()  # (p, q, r, s) and (s, r, t, u)
+    f[0], f[1] = [p, q, r, t], [t, u, s, p]  # the hexagon p q r t u s split from p to t, not from r to s
+    return v, f
+
+
+def test_a_strip_that_crosses_itself_splits_the_quads_it_crosses_in_four():
+    # On the README example's dome every strip between QuadriFlow's two triangular holes crossed itself, and
+    # such a layout was refused. Here two holes on the twisted strip (quads 2 and 4 taken out: the strip code
+    # does not look at a hole's size), a third (quad 12, left open) blocking the way round that does not
+    # cross: every strip between the two crosses itself, the shortest along 9 quads, through the first quad
+    # once each way.
+    v, f = _twisted_torus()
+    assert inspect_quad_mesh(v, f).problems == ()
+    holed = np.delete(f, [2, 4, 12], axis=0)
+    topo = quad_topology(holed, len(v))
+    rings = [[int(topo.origin[h]) for h in loop][::-1] for loop in boundary_loops(topo)]
+    holes = [ring for ring in rings if set(ring) in (set(f[2].tolist()), set(f[4].tolist()))]
+    v2, f2, pairs = pair_odd_holes(v, holed, holes)
+    assert pairs == 1
+    # Seven quads split in two, one split in four about a new centre; each hole has one corner more.
+    assert len(f2) == len(holed) + 7 + 3
+    check = inspect_quad_mesh(v2, f2, expected_boundary_loops=3)
+    assert check.problems == () and sorted(check.boundary_loop_lengths) == [4, 5, 5]
+    assert check.euler_characteristic == inspect_quad_mesh(v, holed, expected_boundary_loops=3).euler_characteristic
+    assert np.all(v2[len(v):] == v[f[0]].mean(axis=0), axis=1).any()
+
+
+def test_a_pairing_that_would_add_too_many_faces_is_refused():
+    v, f = _open_prism(12)
+    with pytest.raises(ValueError, match=r"add 14 faces \(at most 10\)"):
+        pair_odd_holes(v, f, [[int(x) for x in h] for h in _prism_holes(v, f)], max_added_faces=10)
+    assert len(pair_odd_holes(v, f, _prism_holes(v, f), max_added_faces=14)[1]) == len(f) + 14
+
+
+def _prism_holes(v, f):
+    topo = quad_topology(f, len(v))
+    return [[int(topo.origin[h]) for h in loop][::-1] for loop in boundary_loops(topo)]
 
 
 def test_holes_the_source_has_are_left_alone():
