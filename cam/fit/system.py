@@ -25,9 +25,9 @@ from cam.fit._gramkernel import accumulate_grams, band_slot
 from cam.fit.param import Anchors
 from cam.spline.basis import (
     evaluate_surface,
+    gram_matrix,
     span_params,
     surface_rows,
-    thin_plate_matrix,
 )
 from cam.spline.pieces import c0_knots
 
@@ -80,8 +80,8 @@ class NormalEquations:
     Notes
     -----
     The Gram blocks are summed in band storage (`cam.fit._gramkernel`); the matrix of the free control
-    points is gathered from it straight into compressed-column form, its pattern (every pair of free control
-    points whose basis functions overlap, for each coordinate pair) fixed here once per layout.
+    points is gathered from it straight into the banded Cholesky's storage, its pattern (every pair of free
+    control points whose basis functions overlap, for each coordinate pair) fixed here once per layout.
     """
 
     def __init__(self, knots_u: np.ndarray, knots_v: np.ndarray, fixed: np.ndarray, *,
@@ -98,29 +98,32 @@ class NormalEquations:
         c, c2, at, h_at = _band_entries(fixed.shape, degree)
         coupled = index[c] >= 0
         ff, fx = coupled & (index[c2] >= 0), coupled & (index[c2] < 0)
+        hv = h_band.ravel()[h_at]
+        # Free-free pairs (row, column, band entry, thin-plate value) and free-fixed ones, for one coordinate
+        # pair; the nine blocks offset them.
+        r_ff, c_ff, at_ff, h_ff = index[c[ff]], index[c2[ff]], at[ff] * len(_PAIRS), hv[ff]
+        r_fx, at_fx, h_fx, v_fx = index[c[fx]], at[fx] * len(_PAIRS), hv[fx], c2[fx]
         rows, cols, src, h = [], [], [], []
         rows_x, src_x, h_x, value_x = [], [], [], []
         for i in range(3):
             for j in range(3):
                 pair = _PAIR_OF[i, j]
-                hv = h_band.ravel()[h_at] if i == j else np.zeros(at.size)
-                rows.append(i * nf + index[c[ff]])
-                cols.append(j * nf + index[c2[ff]])
-                src.append(at[ff] * len(_PAIRS) + pair)
-                h.append(hv[ff])
-                rows_x.append(i * nf + index[c[fx]])
-                src_x.append(at[fx] * len(_PAIRS) + pair)
-                h_x.append(hv[fx])
-                value_x.append(j * self.ncp + c2[fx])
-        rows, cols = np.concatenate(rows), np.concatenate(cols)
-        order = np.lexsort((rows, cols))
-        self.src, self.h = np.concatenate(src)[order], np.concatenate(h)[order]
-        self.indices = rows[order].astype(np.int32)
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=3 * nf))]).astype(np.int32)
-        col_of = np.repeat(np.arange(3 * nf), np.diff(self.indptr))  # each stored entry's column
-        self.diagonal = np.flatnonzero(self.indices == col_of)
+                rows.append(i * nf + r_ff)
+                cols.append(j * nf + c_ff)
+                src.append(at_ff + pair)
+                h.append(h_ff if i == j else np.zeros(h_ff.size))
+                rows_x.append(i * nf + r_fx)
+                src_x.append(at_fx + pair)
+                h_x.append(h_fx if i == j else np.zeros(h_fx.size))
+                value_x.append(j * self.ncp + v_fx)
+        # The entries stay in the order made here (coordinate pair by pair, control point by point): the band
+        # solve places each where it belongs, and the diagonal comes out in the unknowns' order (x, y, z
+        # blocks, each by control point), which the damping's mean sums in.
+        self.rows, self.cols = np.concatenate(rows), np.concatenate(cols)
+        self.src, self.h = np.concatenate(src), np.concatenate(h)
+        self.diagonal = np.flatnonzero(self.rows == self.cols)
         self.band_at, self.band_width, self.band_src, self.band_dest = _band_layout(
-            fixed.shape, free, self.indices, col_of)
+            fixed.shape, free, self.rows, self.cols)
         self.rows_x, self.src_x = np.concatenate(rows_x), np.concatenate(src_x)
         self.h_x, self.value_x = np.concatenate(h_x), np.concatenate(value_x)
 
@@ -213,7 +216,8 @@ class NormalEquations:
         try:
             y = cho_solve_banded((cholesky_banded(ab, lower=True, check_finite=False), True), rhs, check_finite=False)
         except np.linalg.LinAlgError:
-            M = sp.csc_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(n, n))
+            M = sp.csc_matrix((data, (self.rows, self.cols)), shape=(n, n))
+            M.sort_indices()
             M.eliminate_zeros()  # in place; pairs of the pattern that nothing coupled would only add fill
             return _solve_sparse_spd(M, r)
         return y[self.band_at]
@@ -221,16 +225,28 @@ class NormalEquations:
 
 def _thin_plate_band(knots_u: np.ndarray, knots_v: np.ndarray, shape: tuple[int, int], degree: tuple[int, int],
                      lengths_mm: tuple[float, float]) -> np.ndarray:
-    """The thin-plate matrix of the layout in band storage: (nu nv, (2p + 1)(2q + 1)) float64."""
+    """The thin-plate matrix of the layout in band storage: (nu nv, (2p + 1)(2q + 1)) float64.
+
+    Entry (i nv + j, slot of (di, dj)) is `thin_plate_matrix`'s between control points (i, j) and (i + di, j + dj),
+    from the same products of the one-dimensional Gram matrices with the same operations, without the sparse
+    Kronecker products (basis functions that do not overlap bend nothing together, so the band holds them all).
+    """
     p, q = degree
-    nv = shape[1]
-    H = thin_plate_matrix(knots_u, knots_v, degree=degree, length_u=lengths_mm[0], length_v=lengths_mm[1]).tocoo()
-    di, dj = H.col // nv - H.row // nv, H.col % nv - H.row % nv
-    outside = (np.abs(di) > p) | (np.abs(dj) > q)
-    if np.any(H.data[outside] != 0):  # basis functions that do not overlap bend nothing together
-        raise RuntimeError("thin-plate matrix has a coupling outside the basis functions' overlap")
-    band = np.zeros((shape[0] * nv, (2 * p + 1) * (2 * q + 1)))
-    band[H.row[~outside], band_slot(di[~outside], dj[~outside], degree)] = H.data[~outside]
+    (nu, nv), (lu, lv) = shape, (float(lengths_mm[0]), float(lengths_mm[1]))
+    gu = [gram_matrix(knots_u, p, d) for d in range(3)]
+    gv = [gram_matrix(knots_v, q, d) for d in range(3)]
+    i, j = np.divmod(np.arange(nu * nv), nv)
+    band = np.zeros((nu * nv, (2 * p + 1) * (2 * q + 1)))
+    for di in range(-p, p + 1):
+        for dj in range(-q, q + 1):
+            ok = (i + di >= 0) & (i + di < nu) & (j + dj >= 0) & (j + dj < nv)
+            a, b, a2, b2 = i[ok], j[ok], i[ok] + di, j[ok] + dj
+            # As `thin_plate_matrix` sums them, (G2u ⊗ G0v / Lu⁴ + 2 G1u ⊗ G1v / (Lu² Lv²) + G0u ⊗ G2v / Lv⁴) Lu Lv,
+            # a sparse matrix divided by a number being multiplied by its reciprocal.
+            value = (gu[2][a, a2] * gv[0][b, b2] * (1 / lu**4)
+                     + 2.0 * (gu[1][a, a2] * gv[1][b, b2]) * (1 / (lu**2 * lv**2))
+                     + gu[0][a, a2] * gv[2][b, b2] * (1 / lv**4)) * (lu * lv)
+            band[ok, int(band_slot(di, dj, degree))] = value
     return band
 
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import cam.fit.system as system_module
 from cam.fit._gramkernel import accumulate_grams, band_slot
-from cam.fit.system import NormalEquations
+from cam.fit.system import NormalEquations, _thin_plate_band
 from cam.spline.basis import surface_matrix, surface_rows, thin_plate_matrix
 from cam.spline.surface import clamped_uniform_knots
 
@@ -89,6 +90,42 @@ def test_one_gram_serves_steps_of_any_smoothing_and_damping():
         np.testing.assert_array_equal(system.solve_gram(gram, lam, cp, damping), system.solve(rows, lam, cp, damping))
     for a, b in zip(gram, kept):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_thin_plate_band_holds_the_thin_plate_matrix_to_the_bit():
+    # Built straight into band storage from the one-dimensional Gram matrices, with the sparse products' own
+    # operations: every entry as `thin_plate_matrix` has it, nothing outside the basis functions' overlap.
+    nu, nv = KU.size - 4, KV.size - 4
+    band = _thin_plate_band(KU, KV, (nu, nv), (3, 3), (30.0, 20.0))
+    H = thin_plate_matrix(KU, KV, length_u=30.0, length_v=20.0).toarray()
+    want = np.zeros_like(band)
+    for c in range(nu * nv):
+        for c2 in range(nu * nv):
+            di, dj = c2 // nv - c // nv, c2 % nv - c % nv
+            if abs(di) <= 3 and abs(dj) <= 3:
+                want[c, int(band_slot(di, dj, (3, 3)))] = H[c, c2]
+            else:
+                assert H[c, c2] == 0.0
+    np.testing.assert_array_equal(band, want)
+
+
+def test_a_matrix_the_banded_factor_refuses_is_solved_by_the_sparse_fallback(monkeypatch):
+    rng = np.random.default_rng(6)
+    nu, nv = KU.size - 4, KV.size - 4
+    fixed = np.zeros((nu, nv), dtype=bool)
+    fixed[:, 0] = True
+    cp = rng.normal(size=(nu, nv, 3))
+    sets = _row_sets(rng)
+    rows = [(surface_rows(KU, KV, u, v, du=du), terms) for (u, v, du), terms in sets]
+    system = NormalEquations(KU, KV, fixed, lengths_mm=(30.0, 20.0), degree=(3, 3))
+
+    def refuse(*args, **kwargs):
+        raise np.linalg.LinAlgError("not positive definite")
+
+    monkeypatch.setattr(system_module, "cholesky_banded", refuse)
+    got = system.solve(rows, 0.05, cp)
+    want = _dense_solution(sets, fixed, 0.05, cp, 0.0)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
 
 
 def test_a_control_point_nothing_reaches_keeps_its_value():
