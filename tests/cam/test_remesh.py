@@ -212,9 +212,7 @@ def test_a_strip_that_crosses_itself_splits_the_quads_it_crosses_in_four():
     v, f = _twisted_torus()
     assert inspect_quad_mesh(v, f).problems == ()
     holed = np.delete(f, [2, 4, 12], axis=0)
-    topo = quad_topology(holed, len(v))
-    rings = [[int(topo.origin[h]) for h in loop][::-1] for loop in boundary_loops(topo)]
-    holes = [ring for ring in rings if set(ring) in (set(f[2].tolist()), set(f[4].tolist()))]
+    holes = [ring for ring in _hole_rings(v, holed) if set(ring) in (set(f[2].tolist()), set(f[4].tolist()))]
     v2, f2, pairs = pair_odd_holes(v, holed, holes)
     assert pairs == 1
     # Seven quads split in two, one split in four about a new centre; each hole has one corner more.
@@ -228,11 +226,12 @@ def test_a_strip_that_crosses_itself_splits_the_quads_it_crosses_in_four():
 def test_a_pairing_that_would_add_too_many_faces_is_refused():
     v, f = _open_prism(12)
     with pytest.raises(ValueError, match=r"add 14 faces \(at most 10\)"):
-        pair_odd_holes(v, f, [[int(x) for x in h] for h in _prism_holes(v, f)], max_added_faces=10)
-    assert len(pair_odd_holes(v, f, _prism_holes(v, f), max_added_faces=14)[1]) == len(f) + 14
+        pair_odd_holes(v, f, _hole_rings(v, f), max_added_faces=10)
+    assert len(pair_odd_holes(v, f, _hole_rings(v, f), max_added_faces=14)[1]) == len(f) + 14
 
 
-def _prism_holes(v, f):
+def _hole_rings(v, f):
+    """Each boundary loop's vertices in the orientation of the face that would fill it."""
     topo = quad_topology(f, len(v))
     return [[int(topo.origin[h]) for h in loop][::-1] for loop in boundary_loops(topo)]
 
