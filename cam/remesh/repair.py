@@ -2,6 +2,7 @@
 
 A repair is safe when it changes no geometry beyond the quads it touches:
 collapsing a folded quad (two corners at one point) along its short diagonal,
+merging the two ends of a quad edge of no length (the quad is a triangle in fact, left as a hole to close),
 merging the two quads around an interior valence-2 vertex into one, closing
 holes of 3, 5 or 7 edges in pairs (:mod:`cam.remesh.holes`) and closing a hole bounded
 by exactly four edges with one quad, six with two or eight with three. Anything else is reported, not
@@ -10,9 +11,11 @@ guessed at.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from cam.mesh.quads import quad_topology
+from cam.mesh.quads import quad_topology, vertex_fans
 from cam.remesh.check import boundary_loops
 from cam.remesh.holes import pair_odd_holes, split_into_quads
 
@@ -70,20 +73,54 @@ def repair_quad_mesh(
     verts, quads, folded = _collapse_folded(verts, quads, fold_ratio)
     if folded:
         repairs.append(f"collapsed {folded} folded quad(s) (a diagonal shorter than {fold_ratio:g} × the median edge)")
-    quads, merges = _merge_valence2(quads, len(verts))
-    if merges:
-        repairs.append(_merged(merges))
-    verts, quads, done = _close_odd_holes(verts, quads, expected_boundary_loops, split_unpaired=split_unpaired)
+    verts, quads, done = _close_holes_after_zero_edges(verts, quads, fold_ratio, expected_boundary_loops,
+                                                      split_unpaired=split_unpaired)
     repairs += done
-    quads, done = _close_small_even_holes(verts, quads, expected_boundary_loops)
-    repairs += done
-    quads, more = _merge_valence2(quads, len(verts))  # a closed hole can leave a valence-2 vertex beside it
-    if more:
-        repairs.append(_merged(more))
     verts2, quads2 = drop_unused_vertices(verts, quads)
     if len(verts2) != len(verts):
         repairs.append(f"dropped {len(verts) - len(verts2)} unused vertices")
     return verts2, quads2, repairs
+
+
+def _close_holes_after_zero_edges(verts: np.ndarray, quads: np.ndarray, ratio: float, expected_boundary_loops: int,
+                                  *, split_unpaired: bool) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """`_resolve_zero_edges`, then `_close_holes`; where the holes a merge leaves cannot be paired, the same
+    without merges (the hole a merge leaves can lie where no short strip of quads joins it to the other odd
+    hole, where the hole it closed could be paired: those edges of no length then stay, and the repairs say
+    so), and only then, with ``split_unpaired``, the odd holes filled and every face split."""
+    merged = _resolve_zero_edges(verts, quads, ratio, merge=True)
+    tries = [(merged, "merging their ends would pinch the mesh and opening them would fold a quad")]
+    if merged.merged:
+        tries.append((_resolve_zero_edges(verts, quads, ratio, merge=False), "merged, their ends left odd "
+                      "holes that could not be paired (or would pinch the mesh)"))
+    first_error = None
+    for zero, why_left in tries:
+        try:
+            v, q, done = _close_holes(zero.verts, zero.quads, expected_boundary_loops, split_unpaired=False)
+            return v, q, zero.sentences(why_left) + done
+        except ValueError as exc:
+            first_error = first_error or exc
+    if not split_unpaired:
+        raise first_error
+    v, q, done = _close_holes(merged.verts, merged.quads, expected_boundary_loops, split_unpaired=True)
+    return v, q, merged.sentences(tries[0][1]) + done
+
+
+def _close_holes(verts: np.ndarray, quads: np.ndarray, expected_boundary_loops: int, *,
+                 split_unpaired: bool) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Merge the quads around valence-2 vertices and close the extra holes (`repair_quad_mesh`)."""
+    done: list[str] = []
+    quads, merges = _merge_valence2(quads, len(verts))
+    if merges:
+        done.append(_merged(merges))
+    verts, quads, closed = _close_odd_holes(verts, quads, expected_boundary_loops, split_unpaired=split_unpaired)
+    done += closed
+    quads, closed = _close_small_even_holes(verts, quads, expected_boundary_loops)
+    done += closed
+    quads, more = _merge_valence2(quads, len(verts))  # a closed hole can leave a valence-2 vertex beside it
+    if more:
+        done.append(_merged(more))
+    return verts, quads, done
 
 
 def drop_unused_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -170,6 +207,117 @@ def _collapse_folded(verts: np.ndarray, faces: np.ndarray, ratio: float) -> tupl
         keep[f] = False
     roots = np.fromiter((find(v) for v in range(len(verts))), dtype=np.int64, count=len(verts))
     return verts, roots[faces[keep]], len(folded)
+
+
+@dataclass(frozen=True)
+class _ZeroEdges:
+    """A quad mesh after `_resolve_zero_edges`, and how many quad edges of no length it merged, opened and left."""
+
+    verts: np.ndarray
+    quads: np.ndarray
+    merged: int
+    opened: int
+    left: int
+
+    def sentences(self, why_left: str) -> list[str]:
+        done = []
+        if self.merged:
+            done.append(f"merged the ends of {self.merged} quad edge(s) of no length, dropping the quads left with "
+                        "three corners")
+        if self.opened:
+            done.append(f"opened {self.opened} quad edge(s) of no length between two quads to half the median edge")
+        if self.left:
+            done.append(f"left {self.left} quad edge(s) of no length: {why_left}")
+        return done
+
+
+def _resolve_zero_edges(verts: np.ndarray, quads: np.ndarray, ratio: float, *, merge: bool) -> _ZeroEdges:
+    """Merge (where ``merge``) or else open the two ends of each quad edge shorter than ``ratio`` × the median
+    edge, one edge at a time.
+
+    QuadriFlow leaves a few such edges at sharp corners: the quad is a triangle with a corner doubled, often
+    beside a triangular hole whose third edge is the same edge of no length. Merged, the hole's other two
+    edges close up as one and the quad, now three corners, is dropped: what is left is a triangular hole
+    of real edges, which `_close_odd_holes` pairs like any other. Where a merge would pinch the mesh (the
+    edge lies between two such quads, which would become two triangles touching at a point) or break its
+    connectivity, the ends are moved apart instead (`_opened`), unless that folds a quad.
+    """
+    p = verts[quads]
+    lengths = np.linalg.norm(p - np.roll(p, -1, axis=1), axis=2)
+    median_edge = float(np.median(lengths))
+    rows, cols = np.nonzero(lengths < ratio * median_edge)
+    pinched = _pinched_vertices(quads, len(verts)) if len(rows) else None
+    if pinched is None:
+        return _ZeroEdges(verts, quads, 0, 0, 0)
+    ends = quads[rows, cols], quads[rows, (cols + 1) % 4]
+    edges = sorted({(min(a, b), max(a, b)) for a, b in zip(*(e.tolist() for e in ends), strict=True)})
+    alias: dict[int, int] = {}
+    merged = opened = left = 0
+    for first, second in edges:
+        a, b = _root(alias, first), _root(alias, second)
+        if a == b:
+            continue
+        renamed = np.where(quads == b, a, quads)
+        keep = np.array([len(set(q)) == 4 for q in renamed.tolist()])
+        after = _pinched_vertices(renamed[keep], len(verts)) if merge else None
+        if after is not None and after <= pinched:
+            quads, alias[b] = renamed[keep], a
+            merged += 1
+            continue
+        moved = _opened(verts, quads, a, b, half_mm=0.25 * median_edge)
+        if moved is None:
+            left += 1
+        else:
+            verts, opened = moved, opened + 1
+    return _ZeroEdges(verts, quads, merged, opened, left)
+
+
+def _opened(verts: np.ndarray, quads: np.ndarray, a: int, b: int, *, half_mm: float) -> np.ndarray | None:
+    """The vertices with ``a`` and ``b`` (at one point, joined by an edge between two quads) moved ``half_mm``
+    apart each way, across the line between those two quads' other corners, so that each quad keeps its
+    side; None where the edge is not between exactly two quads or a quad at ``a`` or ``b`` would fold."""
+    at = np.flatnonzero(((quads == a) | (quads == b)).any(axis=1))
+    pair = [f for f in at.tolist() if a in quads[f] and b in quads[f]]
+    if len(pair) != 2:
+        return None
+    normal = _quad_normals(verts, quads[at]).sum(axis=0)
+    first = quads[pair[0]].tolist()
+    others = [[v for v in quads[f].tolist() if v not in (a, b)] for f in pair]
+    across = verts[others[0]].mean(axis=0) - verts[others[1]].mean(axis=0)
+    along = np.cross(across, normal)
+    if not np.linalg.norm(along) > 0:
+        return None
+    along /= np.linalg.norm(along)
+    # the first quad is on the left of its edge a -> b (or b -> a), as a counter-clockwise face
+    if first[(first.index(a) + 1) % 4] != b:
+        along = -along
+    middle = 0.5 * (verts[a] + verts[b])
+    moved = verts.copy()
+    moved[a], moved[b] = middle - half_mm * along, middle + half_mm * along
+    if (np.einsum("ij,j->i", _quad_normals(moved, quads[at]), normal) <= 0).any():
+        return None
+    return moved
+
+
+def _quad_normals(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(m, 3) the cross products of each quad's diagonals: normal to it, as long as twice its area."""
+    p = verts[quads]
+    return np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
+
+
+def _root(alias: dict[int, int], v: int) -> int:
+    while v in alias:
+        v = alias[v]
+    return v
+
+
+def _pinched_vertices(quads: np.ndarray, n_vertices: int) -> int | None:
+    """Vertices where faces touch only at a corner; None when the connectivity cannot be built."""
+    try:
+        topo = quad_topology(quads, n_vertices)
+    except ValueError:
+        return None
+    return sum(len(vertex_fans(topo, v)) > 1 for v in np.flatnonzero(topo.face_count > 0).tolist())
 
 
 def _close_odd_holes(verts: np.ndarray, quads: np.ndarray, expected_boundary_loops: int, *,

@@ -255,6 +255,42 @@ def test_repair_collapses_a_folded_quad():
     assert len(boundary_loops(topo)) == 1
 
 
+
+def _corner_quads(v, f):
+    return sorted(tuple(sorted(map(tuple, np.round(v[q], 9).tolist()))) for q in f.tolist())
+
+
+def test_a_quad_with_a_doubled_corner_beside_a_slit_is_merged_back_into_the_grid():
+    # QuadriFlow's artifact at a sharp corner (seen on a 40° ridge's end): a quad whose corner is doubled (an edge
+    # of no length, so in fact a triangle) beside the hole the doubled corner opens. Merged, the grid is back.
+    v, f = quad_grid(4, 4, size=(4.0, 4.0))
+    o, e, ne, n = f[10].tolist()  # the quad at the centre (2, 2), counter-clockwise from it
+    v2 = np.vstack([v, v[o]])
+    f2 = f.copy()
+    f2[10] = [o, e, ne, len(v)]
+    assert inspect_quad_mesh(v2, f2, expected_boundary_loops=1).boundary_loop_lengths == (4, 16)
+    v3, f3, done = repair_quad_mesh(v2, f2, expected_boundary_loops=1)
+    assert done[0].startswith("merged the ends of 1 quad edge(s) of no length")
+    assert _corner_quads(v3, f3) == _corner_quads(v, f)
+    assert inspect_quad_mesh(v3, f3, expected_boundary_loops=1).problems == ()
+
+
+def test_an_edge_of_no_length_between_two_quads_is_opened_across_them():
+    # Merging its ends would leave two triangles touching at a point; instead both ends move a quarter of the
+    # median edge apart, along the line between the two quads' other corners turned a right angle.
+    v, f = quad_grid(4, 4, size=(4.0, 4.0))
+    a, b = 12, 17  # the centre (2, 2) and (3, 2): the edge between quads 6 and 10
+    v2 = v.copy()
+    v2[b] = v2[a]
+    v3, f3, done = repair_quad_mesh(v2, f, expected_boundary_loops=1)
+    assert done == ["opened 1 quad edge(s) of no length between two quads to half the median edge"]
+    assert np.array_equal(f3, f)
+    moved = np.ones(len(v), dtype=bool)
+    moved[[a, b]] = False
+    assert np.array_equal(v3[moved], v[moved])
+    assert np.allclose(v3[[a, b]], [[1.75, 2.0, 0.0], [2.25, 2.0, 0.0]])  # about the point both were at, in order
+    assert (face_normals(v3, f3)[:, 2] > 0).all()
+
 # --- closest points -------------------------------------------------------------------------------------------
 
 def test_closest_points_match_brute_force():
