@@ -91,8 +91,8 @@ def _close_holes_after_zero_edges(verts: np.ndarray, quads: np.ndarray, ratio: f
     merged = _resolve_zero_edges(verts, quads, ratio, merge=True)
     tries = [(merged, "merging their ends would pinch the mesh and opening them would fold a quad")]
     if merged.merged:
-        tries.append((_resolve_zero_edges(verts, quads, ratio, merge=False), "merged, their ends left odd "
-                      "holes that could not be paired (or would pinch the mesh)"))
+        why_left = "merged, their ends left odd holes that could not be paired (or would pinch the mesh)"
+        tries.append((_resolve_zero_edges(verts, quads, ratio, merge=False), why_left))
     first_error = None
     for zero, why_left in tries:
         try:

@@ -264,7 +264,7 @@ def test_a_quad_with_a_doubled_corner_beside_a_slit_is_merged_back_into_the_grid
     # QuadriFlow's artifact at a sharp corner (seen on a 40° ridge's end): a quad whose corner is doubled (an edge
     # of no length, so in fact a triangle) beside the hole the doubled corner opens. Merged, the grid is back.
     v, f = quad_grid(4, 4, size=(4.0, 4.0))
-    o, e, ne, n = f[10].tolist()  # the quad at the centre (2, 2), counter-clockwise from it
+    o, e, ne, _ = f[10].tolist()  # the quad at the centre (2, 2), counter-clockwise from it
     v2 = np.vstack([v, v[o]])
     f2 = f.copy()
     f2[10] = [o, e, ne, len(v)]
