@@ -2,7 +2,8 @@
 
 A repair is safe when it changes no geometry beyond the quads it touches:
 collapsing a folded quad (two corners at one point) along its short diagonal,
-merging the two ends of a quad edge of no length (the quad is a triangle in fact, left as a hole to close),
+merging the two ends of a quad edge of no length (the quad is a triangle in fact, left as a hole to close)
+or moving them apart between two quads,
 merging the two quads around an interior valence-2 vertex into one, closing
 holes of 3, 5 or 7 edges in pairs (:mod:`cam.remesh.holes`) and closing a hole bounded
 by exactly four edges with one quad, six with two or eight with three. Anything else is reported, not
@@ -26,7 +27,8 @@ def repair_quad_mesh(
     vertices: np.ndarray, faces: np.ndarray, *, expected_boundary_loops: int = 0, fold_ratio: float = 0.01,
     split_unpaired: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Apply the safe repairs: collapse folded quads, merge quads at interior valence-2 vertices,
+    """Apply the safe repairs: collapse folded quads, merge or open quad edges of no length
+    (`_resolve_zero_edges`), merge quads at interior valence-2 vertices,
     close holes of 3, 5 and 7 edges in pairs, 4-edge holes with a quad, 6-edge holes with two and 8-edge
     holes with three, merge again the quads around valence-2 vertices the filling left, drop unused
     vertices.
@@ -45,7 +47,8 @@ def repair_quad_mesh(
     fold_ratio
         A quad whose shorter diagonal is below this fraction of the median
         edge length is folded (QuadriFlow leaves a few at sharp corners, with
-        two corners at the same point) and is collapsed along that diagonal.
+        two corners at the same point) and is collapsed along that diagonal;
+        a quad edge shorter than this fraction has no length (merged or opened).
     split_unpaired
         When the odd holes cannot be paired, fill each with a face and
         split every face into quads (:func:`cam.remesh.holes.split_into_quads`,
