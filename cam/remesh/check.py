@@ -15,7 +15,7 @@ import numpy as np
 
 from cam.mesh.quads import QuadTopology, quad_topology, vertex_fans
 
-__all__ = ["QuadMeshReport", "boundary_loops", "inspect_quad_mesh"]
+__all__ = ["QuadMeshReport", "boundary_loops", "count_pinched_vertices", "inspect_quad_mesh"]
 
 
 @dataclass(frozen=True)
@@ -111,6 +111,11 @@ def boundary_loops(topo: QuadTopology) -> list[list[int]]:
     return loops
 
 
+def count_pinched_vertices(topo: QuadTopology) -> int:
+    """Vertices of ``topo`` where faces touch only at a corner (more than one fan of faces)."""
+    return sum(len(vertex_fans(topo, v)) > 1 for v in np.flatnonzero(topo.face_count > 0).tolist())
+
+
 def _components(faces: np.ndarray, n_vertices: int) -> int:
     """Connected pieces among the vertices the faces use."""
     from scipy.sparse import coo_matrix
@@ -161,10 +166,7 @@ def inspect_quad_mesh(vertices: np.ndarray, faces: np.ndarray, *, expected_bound
         problems.append(f"{len(loops) - expected_boundary_loops} hole(s): boundary loops of {list(lengths)} edges "
                         f"where the source has {expected_boundary_loops}")
     used = topo.face_count > 0
-    pinched = 0
-    for v in np.flatnonzero(used).tolist():
-        if len(vertex_fans(topo, v)) > 1:
-            pinched += 1
+    pinched = count_pinched_vertices(topo)
     if pinched:
         problems.append(f"{pinched} non-manifold vertices (faces touch only at a corner)")
     valence2 = int(((topo.valence == 2) & ~topo.boundary_vertex & used).sum())

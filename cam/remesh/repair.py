@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cam.mesh.quads import quad_topology, vertex_fans
-from cam.remesh.check import boundary_loops
+from cam.mesh.quads import quad_topology
+from cam.remesh.check import boundary_loops, count_pinched_vertices
 from cam.remesh.holes import pair_odd_holes, split_into_quads
 
 __all__ = ["drop_unused_vertices", "repair_quad_mesh"]
@@ -92,21 +92,24 @@ def _close_holes_after_zero_edges(verts: np.ndarray, quads: np.ndarray, ratio: f
     hole, where the hole it closed could be paired: those edges of no length then stay, and the repairs say
     so), and only then, with ``split_unpaired``, the odd holes filled and every face split."""
     merged = _resolve_zero_edges(verts, quads, ratio, merge=True)
-    tries = [(merged, "merging their ends would pinch the mesh and opening them would fold a quad")]
-    if merged.merged:
-        why_left = "merged, their ends left odd holes that could not be paired (or would pinch the mesh)"
-        tries.append((_resolve_zero_edges(verts, quads, ratio, merge=False), why_left))
+    why_left = "merging their ends would pinch the mesh and opening them would fold a quad"
+    if not merged.merged:  # nothing to take back: one try, split or not
+        v, q, done = _close_holes(merged.verts, merged.quads, expected_boundary_loops, split_unpaired=split_unpaired)
+        return v, q, merged.sentences(why_left) + done
+    kept = _resolve_zero_edges(verts, quads, ratio, merge=False)
+    why_kept = "merged, their ends left odd holes that could not be paired (or would pinch the mesh)"
+    tries = [(merged, why_left), (kept, why_kept)]
     first_error = None
-    for zero, why_left in tries:
+    for zero, why in tries:
         try:
             v, q, done = _close_holes(zero.verts, zero.quads, expected_boundary_loops, split_unpaired=False)
-            return v, q, zero.sentences(why_left) + done
+            return v, q, zero.sentences(why) + done
         except ValueError as exc:
             first_error = first_error or exc
     if not split_unpaired:
         raise first_error
     v, q, done = _close_holes(merged.verts, merged.quads, expected_boundary_loops, split_unpaired=True)
-    return v, q, merged.sentences(tries[0][1]) + done
+    return v, q, merged.sentences(why_left) + done
 
 
 def _close_holes(verts: np.ndarray, quads: np.ndarray, expected_boundary_loops: int, *,
@@ -317,10 +320,9 @@ def _root(alias: dict[int, int], v: int) -> int:
 def _pinched_vertices(quads: np.ndarray, n_vertices: int) -> int | None:
     """Vertices where faces touch only at a corner; None when the connectivity cannot be built."""
     try:
-        topo = quad_topology(quads, n_vertices)
+        return count_pinched_vertices(quad_topology(quads, n_vertices))
     except ValueError:
         return None
-    return sum(len(vertex_fans(topo, v)) > 1 for v in np.flatnonzero(topo.face_count > 0).tolist())
 
 
 def _close_odd_holes(verts: np.ndarray, quads: np.ndarray, expected_boundary_loops: int, *,
