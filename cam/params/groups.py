@@ -80,8 +80,15 @@ class DenoiseParams(_Group):
 
 
 class RemeshParams(_Group):
-    target_faces: int = Field(3000, ge=100, le=1_000_000, description="Quad faces QuadriFlow aims for "
+    layout: Literal["creases", "quadriflow"] = Field("creases", description="creases: a layout made creases first, "
+                                                     "every crease a chain of quad edges by construction "
+                                                     "(QuadriFlow when it cannot be made, and on a mesh with "
+                                                     "holes); quadriflow: QuadriFlow's layout.")
+    target_faces: int = Field(3000, ge=100, le=1_000_000, description="Quad faces aimed for "
                               "(about 3,000 on a 50k-point part: finer meshes give segment more, thinner patches).")
+    coarse_quads: float = Field(8.0, ge=2, le=32, description="Crease-first layout: the length of its coarse "
+                                "mesh's edges, in quads. Longer: fewer extraordinary vertices (and patches), and "
+                                "curved faces still get shorter ones.")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="QuadriFlow's seed for the first attempt.")
     attempts: int = Field(3, ge=1, le=10, description="Most seeds tried (seed, seed + 1, ...).")
     candidates: int = Field(3, ge=1, le=10, description="Quad meshes that pass their checks to compare: the one "

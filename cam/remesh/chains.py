@@ -29,6 +29,7 @@ class Chain:
     points: np.ndarray  # (k, 3) float64, the crease polyline end to end, mm
     arc: np.ndarray  # (k,) float64, arc length from the first point, mm
     ends: tuple  # keys of its two ends: a triangle-mesh vertex id, or the key of the piece a split point cut
+    ids: np.ndarray | None = None  # (k,) int64: the triangle-mesh vertex of each point, where the chain is made of them
 
     @property
     def length(self) -> float:
@@ -75,12 +76,12 @@ def crease_chains(tv: np.ndarray, tf: np.ndarray, *, crease_angle_deg: float, ge
 
 
 def _make_chain(ids: list[int], tv: np.ndarray) -> Chain:
-    return chain_from_points(tv[ids], (ids[0], ids[-1]))
+    return chain_from_points(tv[ids], (ids[0], ids[-1]), ids=np.asarray(ids, dtype=np.int64))
 
 
-def chain_from_points(points: np.ndarray, ends: tuple) -> Chain:
+def chain_from_points(points: np.ndarray, ends: tuple, *, ids: np.ndarray | None = None) -> Chain:
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return Chain(points=points, arc=arc, ends=ends)
+    return Chain(points=points, arc=arc, ends=ends, ids=ids)
 
 
 def _walks(edges: np.ndarray) -> list[list[int]]:

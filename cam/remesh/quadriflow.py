@@ -1,4 +1,5 @@
-"""Quad remeshing with QuadriFlow: several runs, each checked, and the one that follows the creases best.
+"""The remesh stage's entry point, `remesh_quads`: the crease-first layout (`cam.remesh.layout`), or QuadriFlow
+where that cannot be made or is not asked for: several runs, each checked, and the one that follows the creases best.
 
 QuadriFlow runs in a child process with a timeout (:mod:`cam.remesh.process`),
 because on rare inputs it loops forever; a timeout, a crash or a result that
@@ -21,12 +22,13 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from cam import CheckCancel, GeometryError, Progress
+from cam import CheckCancel, GeometryError, Progress, progress_between
 from cam.mesh.closest import MeshIndex, mesh_index
 from cam.mesh.rows import unique_pairs
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads, hausdorff_to_mesh
 from cam.remesh.check import inspect_quad_mesh
+from cam.remesh.layout import crease_first_layout
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
 from cam.remesh.process import QuadriflowFailed, QuadriflowRuns
 from cam.remesh.snap import snap_to_creases
@@ -124,6 +126,10 @@ def remesh_quads(
     params
         The remesh group:
 
+        - ``layout``: ``"creases"`` makes the crease-first layout (:func:`cam.remesh.layout.crease_first_layout`,
+          its coarse edges ``coarse_quads`` quads long), checked like a QuadriFlow run; where the mesh has
+          boundary loops, or the layout fails its checks, QuadriFlow makes the layout as below and the report's
+          ``layout_fallback`` says why. ``"quadriflow"``: QuadriFlow only. The report's ``layout`` says which.
         - ``target_faces``: quads to aim for.
         - ``seed``: seed of the first attempt; attempt ``i`` uses ``seed + i``. Once a run
           has failed, later ones also take a face count a few percent off the
@@ -183,6 +189,19 @@ def remesh_quads(
         When every attempt failed: the message lists each attempt's seed and reason.
     """
     mesh = _prepare_input(vertices, faces)
+    fallback = None
+    if params.layout == "creases":
+        if mesh.boundary_loops:
+            fallback = (f"the mesh has {mesh.boundary_loops} boundary loop(s) and the crease-first layout needs a "
+                        "closed part")
+        else:
+            try:
+                return _crease_first(mesh, params, progress=progress, check_cancel=check_cancel,
+                                     crease_angle_deg=crease_angle_deg)
+            except ValueError as exc:  # GeometryError too: the reason is reported, QuadriFlow makes the layout
+                fallback = f"the crease-first layout failed: {exc}"
+        if progress is not None:
+            progress(0.0, "QuadriFlow, since " + fallback)
     if params.snap_creases:
         mesh = mesh._replace(index=mesh_index(mesh.vertices, mesh.triangles))
     accepted, failures, runs = _run_attempts(mesh, params, processes=processes, progress=progress,
@@ -194,8 +213,55 @@ def remesh_quads(
     started = time.monotonic()
     conformity = measure_crease_conformity(best.vertices, best.faces, mesh.vertices, mesh.triangles,
                                            crease_angle_deg=crease_angle_deg)
-    best.report.update(conformity.as_dict(), conformity_s=time.monotonic() - started)
+    best.report.update(conformity.as_dict(), conformity_s=time.monotonic() - started, layout="quadriflow")
+    if fallback is not None:
+        best.report["layout_fallback"] = fallback
     return best
+
+
+def _crease_first(mesh: _Input, params: RemeshParams, *, progress: Progress | None,
+                  check_cancel: CheckCancel | None, crease_angle_deg: float) -> RemeshResult:
+    """The crease-first layout (`cam.remesh.layout`), checked like a QuadriFlow run, with its report; where it
+    fails its checks, once more with coarse edges half as long (finer coarse faces follow bends the longer
+    ones cut across); ValueError saying why each was not usable."""
+    failures = []
+    for coarse_quads in (params.coarse_quads, 0.5 * params.coarse_quads):
+        try:
+            result = _checked_layout(mesh, params, coarse_quads, progress=progress, check_cancel=check_cancel,
+                                     crease_angle_deg=crease_angle_deg)
+        except ValueError as exc:
+            failures.append(f"with coarse edges of {coarse_quads:g} quads, {exc}")
+            continue
+        result.report["failed_attempts"] = failures
+        return result
+    raise ValueError("; ".join(failures))
+
+
+def _checked_layout(mesh: _Input, params: RemeshParams, coarse_quads: float, *, progress: Progress | None,
+                    check_cancel: CheckCancel | None, crease_angle_deg: float) -> RemeshResult:
+    started = time.monotonic()
+    layout, facts = crease_first_layout(mesh.vertices, mesh.triangles, target_faces=params.target_faces,
+                                        crease_angle_deg=crease_angle_deg, coarse_quads=coarse_quads,
+                                        progress=progress_between(progress, 0.0, 0.9), check_cancel=check_cancel)
+    check = inspect_quad_mesh(layout.vertices, layout.quads, expected_boundary_loops=0)
+    if check.problems:
+        raise ValueError("; ".join(check.problems))
+    if progress is not None:
+        progress(0.9, "measuring the layout")
+    index = mesh_index(mesh.vertices, mesh.triangles)
+    hausdorff, mean = hausdorff_to_mesh(layout.vertices, layout.quads, index)
+    if hausdorff > params.max_hausdorff_ratio * mesh.diagonal_mm:
+        raise ValueError(f"it lies {hausdorff:.3g} mm from the input at worst ({hausdorff / mesh.diagonal_mm:.1%} "
+                         f"of the diagonal, limit {params.max_hausdorff_ratio:.1%})")
+    following = measure_crease_following(layout.vertices, layout.quads, mesh.vertices, mesh.triangles)
+    conformity = measure_crease_conformity(layout.vertices, layout.quads, mesh.vertices, mesh.triangles,
+                                           crease_angle_deg=crease_angle_deg)
+    report = {**facts, "target_faces": int(params.target_faces), "faces": len(layout.quads),
+              "vertices": len(layout.vertices), "input_triangles": len(mesh.triangles), "input_boundary_loops": 0,
+              "check": check.as_dict(), "hausdorff_mm": hausdorff, "hausdorff_ratio": hausdorff / mesh.diagonal_mm,
+              "mean_distance_mm": mean, **following.as_dict(), **conformity.as_dict(),
+              "total_s": time.monotonic() - started}
+    return RemeshResult(vertices=layout.vertices, faces=layout.quads, report=report)
 
 
 def _snap(vertices: np.ndarray, faces: np.ndarray, mesh: _Input, facts: dict, crease_angle_deg: float

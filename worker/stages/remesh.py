@@ -1,4 +1,4 @@
-"""The `remesh` stage: QuadriFlow on `mesh.ply`, checked and projected back, written as `quads.obj`."""
+"""The `remesh` stage: the quad layout of `mesh.ply` (crease-first, or QuadriFlow's), checked, written as `quads.obj`."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
     out = {
         "quads.obj": write_quad_obj(
             ctx.output("quads.obj"), result.vertices, result.faces,
-            comments=[(f"cloud2cnc remesh: QuadriFlow seed {report['seed']}, {report['faces']} quads, "
+            comments=[(f"cloud2cnc remesh: {_made_by(report)}, {report['faces']} quads, "
                       f"Hausdorff {report['hausdorff_mm']:.4g} mm, {report['missed_crease_mm']:.4g} of "
                       f"{report['crease_length_mm']:.4g} mm of creases not followed")],
         ),
@@ -41,3 +41,9 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
     }
     ctx.progress(1.0, None)
     return out
+
+
+def _made_by(report: dict) -> str:
+    if report["layout"] == "creases":
+        return f"crease-first layout, {report['coarse_quads']} coarse quads"
+    return f"QuadriFlow seed {report['seed']}"

@@ -1,0 +1,180 @@
+"""The creases a crease-first layout is built on: chains of triangle-mesh edges, their corners, and the regions
+they cut the surface into.
+
+A crease-first layout (:mod:`cam.remesh.layout`) makes every crease a chain of quad edges, so it needs the creases
+as paths of mesh vertices, not as loose edges: :func:`find_crease_features` takes the crease chains of
+:func:`cam.remesh.chains.crease_chains` (sharp creases, gentle ones that run on for two quads, cut where they turn
+sharply), drops short spurs (a crease under a quad long that ends in the middle of a face: a bevel's or a scan's
+stub, which no quad edge needs to follow), and labels each vertex: on no crease, inside one chain (it may slide
+along that chain only), or at a chain's end (a corner: it never moves). The chains cut the triangles into regions;
+a point made inside a region is projected onto that region's triangles only, so that a point on one side of a
+thin wall or a sharp edge never lands on the other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from cam.mesh.closest import MeshIndex, closest_points, mesh_index, triangle_normals
+from cam.remesh.chains import Chain, chain_from_points, crease_chains, points_at
+
+__all__ = ["CreaseFeatures", "SMOOTH", "ON_CHAIN", "CORNER", "find_crease_features"]
+
+# Vertex kinds.
+SMOOTH, ON_CHAIN, CORNER = 0, 1, 2
+
+
+@dataclass(frozen=True, eq=False)
+class CreaseFeatures:
+    """A triangle mesh with its crease chains and regions (see :func:`find_crease_features`).
+
+    Attributes
+    ----------
+    vertices : (p, 3) float64
+        The triangle mesh's vertices, mm.
+    triangles : (q, 3) int64
+        Its triangles.
+    chains : list of Chain
+        The crease chains kept, each with its vertex ids (``Chain.ids``), two ends each.
+    face_region : (q,) int64
+        Each triangle's region: triangles joined across edges that are on no chain.
+    vertex_kind : (p,) int8
+        SMOOTH, ON_CHAIN (inside exactly one chain) or CORNER (a chain's end).
+    vertex_chain : (p,) int64
+        The chain of an ON_CHAIN vertex, -1 for the others.
+    vertex_arc : (p,) float64
+        Arc length of an ON_CHAIN vertex along its chain, mm; 0 for the others.
+    spurs_dropped : int
+        Crease chains dropped as spurs.
+    spur_length_mm : float
+        Their length, mm.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    chains: list[Chain]
+    face_region: np.ndarray
+    vertex_kind: np.ndarray
+    vertex_chain: np.ndarray
+    vertex_arc: np.ndarray
+    spurs_dropped: int
+    spur_length_mm: float
+    _indexes: dict = field(default_factory=dict, repr=False)
+
+    def region_index(self, region: int) -> MeshIndex:
+        """The closest-point index of one region's triangles (built once, when first asked for)."""
+        if region not in self._indexes:
+            self._indexes[region] = mesh_index(self.vertices, self.triangles[self.face_region == region])
+        return self._indexes[region]
+
+    def project(self, points: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest points (float64 (n, 3), mm) on each point's own region and the unit normals there ((n, 3)).
+
+        ``points`` float (n, 3) mm; ``regions`` int (n,): the region each point belongs to.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        regions = np.asarray(regions, dtype=np.int64)
+        out, normals = np.empty_like(points), np.empty_like(points)
+        for r in np.unique(regions).tolist():
+            rows = np.flatnonzero(regions == r)
+            index = self.region_index(r)
+            out[rows], _, tri, _ = closest_points(index, points[rows])
+            normals[rows] = triangle_normals(index, tri)
+        return out, normals
+
+    def chain_points(self, chain: int, arc: np.ndarray) -> np.ndarray:
+        """Points (float64 (k, 3), mm) of chain ``chain`` at arc lengths ``arc`` (mm, (k,))."""
+        return points_at(self.chains[chain], np.asarray(arc, dtype=np.float64))
+
+
+def find_crease_features(vertices: np.ndarray, triangles: np.ndarray, *, crease_angle_deg: float,
+                         gentle_angle_deg: float, corner_turn_deg: float, quad_mm: float) -> CreaseFeatures:
+    """The crease chains of a closed triangle mesh, cleaned of spurs, and the regions they cut it into.
+
+    Parameters
+    ----------
+    vertices : (p, 3) float64
+        Vertices, mm.
+    triangles : (q, 3) int64
+        Triangles, a closed manifold surface.
+    crease_angle_deg : float
+        Edges whose faces' normals differ by more than this are creases, degrees.
+    gentle_angle_deg : float
+        Edges over this angle are creases where their chain runs on for two quads, degrees.
+    corner_turn_deg : float
+        A chain that turns by more than this within half a quad has a corner there, degrees.
+    quad_mm : float
+        The layout's quad size, mm: chains with a free end shorter than this are spurs and dropped.
+
+    Returns
+    -------
+    CreaseFeatures
+    """
+    tv = np.asarray(vertices, dtype=np.float64)
+    tf = np.asarray(triangles, dtype=np.int64)
+    chains, _ = crease_chains(tv, tf, crease_angle_deg=crease_angle_deg, gentle_angle_deg=gentle_angle_deg,
+                              corner_turn_deg=corner_turn_deg, quad_mm=quad_mm)
+    chains = [half for chain in chains for half in _split_loop(chain)]
+    chains, dropped = _drop_spurs(chains, quad_mm)
+    kind = np.full(len(tv), SMOOTH, dtype=np.int8)
+    chain_of = np.full(len(tv), -1, dtype=np.int64)
+    arc_of = np.zeros(len(tv))
+    for c, chain in enumerate(chains):
+        inner = chain.ids[1:-1]
+        kind[inner] = ON_CHAIN
+        chain_of[inner] = c
+        arc_of[inner] = chain.arc[1:-1]
+    for chain in chains:
+        kind[chain.ids[[0, -1]]] = CORNER
+        chain_of[chain.ids[[0, -1]]] = -1
+    return CreaseFeatures(vertices=tv, triangles=tf, chains=chains, face_region=_regions(tf, chains),
+                          vertex_kind=kind, vertex_chain=chain_of, vertex_arc=arc_of, spurs_dropped=len(dropped),
+                          spur_length_mm=float(sum(c.length for c in dropped)))
+
+
+def _split_loop(chain: Chain) -> list[Chain]:
+    """A chain that ends where it starts, cut in two at its middle vertex (a chain needs two ends); others as they are."""
+    if chain.ids[0] != chain.ids[-1] or len(chain.ids) < 4:
+        return [chain]
+    mid = len(chain.ids) // 2
+    return [chain_from_points(chain.points[:mid + 1], (int(chain.ids[0]), int(chain.ids[mid])), ids=chain.ids[:mid + 1]),
+            chain_from_points(chain.points[mid:], (int(chain.ids[mid]), int(chain.ids[-1])), ids=chain.ids[mid:])]
+
+
+def _drop_spurs(chains: list[Chain], quad_mm: float) -> tuple[list[Chain], list[Chain]]:
+    """The chains without spurs (a chain under ``quad_mm`` long with an end no other chain meets), and the spurs;
+    dropping one may make another a spur, so this repeats until none is left."""
+    dropped: list[Chain] = []
+    while True:
+        degree: dict[int, int] = {}
+        for chain in chains:
+            for end in chain.ends:
+                degree[end] = degree.get(end, 0) + 1
+        spur = [c.length < quad_mm and min(degree[e] for e in c.ends) == 1 for c in chains]
+        if not any(spur):
+            return chains, dropped
+        dropped += [c for c, s in zip(chains, spur, strict=True) if s]
+        chains = [c for c, s in zip(chains, spur, strict=True) if not s]
+
+
+def _regions(tf: np.ndarray, chains: list[Chain]) -> np.ndarray:
+    """Region of each triangle: connected components of the triangles joined across edges on no chain."""
+    n = int(tf.max()) + 1
+    edges = np.stack([tf, np.roll(tf, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+    cut = np.zeros(0, dtype=np.int64)
+    if chains:
+        pairs = np.concatenate([np.stack([c.ids[:-1], c.ids[1:]], axis=1) for c in chains])
+        cut = np.minimum(pairs[:, 0], pairs[:, 1]) * n + np.maximum(pairs[:, 0], pairs[:, 1])
+    face = np.repeat(np.arange(len(tf)), 3)
+    order = np.argsort(key, kind="stable")
+    key, face = key[order], face[order]
+    # On a closed manifold mesh every edge key appears twice, in two triangles, next to each other when sorted.
+    joined = (key[:-1] == key[1:]) & ~np.isin(key[:-1], cut)
+    a, b = face[:-1][joined], face[1:][joined]
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(tf), len(tf)))
+    return connected_components(graph, directed=False)[1].astype(np.int64)

@@ -1,0 +1,128 @@
+"""The crease-first quad layout: every crease a chain of quad edges by construction.
+
+1. The creases are found and cut into chains at their corners; spurs are dropped (:mod:`cam.remesh.features`).
+2. A coarse triangle mesh, edges about ``coarse_quads`` quads long, is remeshed from the part with the chains
+   kept as edge paths (:mod:`cam.remesh.coarse`).
+3. Its triangles are paired into quads, never across a crease (:mod:`cam.remesh.pairing`).
+4. Every face is split into quads about its centre, and quad edges are rotated towards valence four
+   (:mod:`cam.remesh.coarsequads`).
+5. Each coarse edge gets a count of quad edges such that neighbouring grids meet (:mod:`cam.remesh.quantize`).
+6. Each coarse quad becomes a grid on the part's surface; a crease's points are put on the crease
+   (:mod:`cam.remesh.subdivide`).
+
+The result is pure quads and closed wherever the part is; its extraordinary vertices are the coarse quads'.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from cam import CheckCancel, GeometryError, Progress
+from cam.remesh.coarse import coarse_triangulation, edge_table
+from cam.remesh.coarsequads import rotate_to_valence, split_into_quads
+from cam.remesh.features import find_crease_features
+from cam.remesh.pairing import pair_triangles
+from cam.remesh.quantize import quantize_edge_counts
+from cam.remesh.subdivide import QuadLayout, subdivide_layout
+
+__all__ = ["crease_first_layout"]
+
+# Creases: gentle ones over this angle count where they run on for two quads; a chain that turns by more than
+# `_CORNER_TURN_DEG` within half a quad has a corner there (the values `cam.remesh.snap` uses).
+_GENTLE_ANGLE_DEG = 35.0
+_CORNER_TURN_DEG = 40.0
+# A coarse collapse stops where the merged planes lie farther than this share of the coarse edge from the vertex.
+_COARSE_ERROR = 0.05
+
+
+def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_faces: int,
+                        crease_angle_deg: float = 50.0, coarse_quads: float = 4.0,
+                        progress: Progress | None = None, check_cancel: CheckCancel | None = None
+                        ) -> tuple[QuadLayout, dict]:
+    """A quad layout of a closed triangle mesh whose edges follow its creases.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+        The part's vertices, mm.
+    triangles : (m, 3) int64
+        Its triangles: a closed manifold surface, counter-clockwise seen from outside.
+    target_faces : int
+        Quads aimed for; the quad size is the square root of the part's area over it.
+    crease_angle_deg : float
+        Edges whose faces' normals differ by more than this are creases, degrees.
+    coarse_quads : float
+        The coarse mesh's edge length in quads: fewer coarse vertices (fewer extraordinary vertices) the longer.
+    progress, check_cancel
+        The stage callbacks (`cam`'s convention).
+
+    Returns
+    -------
+    layout : QuadLayout
+    report : dict
+        JSON-ready: counts of each step (chains, spurs dropped, regions, coarse vertices and triangles, quads
+        and triangles left unpaired), the quad size and the seconds of each step.
+
+    Raises
+    ------
+    GeometryError
+        When the part has no area.
+    """
+    times: dict[str, float] = {}
+    clock = time.monotonic()
+
+    def lap(name: str, fraction: float, message: str) -> None:
+        nonlocal clock
+        times[name] = time.monotonic() - clock
+        clock = time.monotonic()
+        if check_cancel is not None:
+            check_cancel()
+        if progress is not None:
+            progress(fraction, message)
+
+    tv = np.asarray(vertices, dtype=np.float64)
+    tf = np.asarray(triangles, dtype=np.int64)
+    p = tv[tf]
+    area = 0.5 * float(np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum())
+    if not area > 0:
+        raise GeometryError("the mesh has no area: no quad layout can be made")
+    quad_mm = float(np.sqrt(area / target_faces))
+    coarse_mm = coarse_quads * quad_mm
+    if progress is not None:
+        progress(0.0, "finding the creases")
+    features = find_crease_features(tv, tf, crease_angle_deg=crease_angle_deg, gentle_angle_deg=_GENTLE_ANGLE_DEG,
+                                    corner_turn_deg=_CORNER_TURN_DEG, quad_mm=quad_mm)
+    lap("features_s", 0.1, "a coarse mesh along the creases")
+    mesh = coarse_triangulation(features, edge_mm=coarse_mm, max_error_mm=_COARSE_ERROR * coarse_mm,
+                                check_cancel=check_cancel)
+    coarse_vertices, coarse_triangles = len(mesh.V), len(mesh.F)
+    lap("coarse_s", 0.5, "pairing its triangles")
+    quads, pairs = pair_triangles(mesh.V, mesh.F, set(mesh.result().crease_edges()))
+    unpaired = np.ones(len(mesh.F), dtype=bool)
+    unpaired[pairs.ravel()] = False
+    split_into_quads(mesh, quads, mesh.region[pairs[:, 0]], mesh.F[unpaired], mesh.region[unpaired])
+    mesh.relax()
+    rotations = rotate_to_valence(mesh)
+    coarse = mesh.result()
+    lap("coarse_quads_s", 0.7, "counting quads along the coarse edges")
+    edges, _ = edge_table(coarse.faces)
+    lengths = np.linalg.norm(coarse.vertices[edges[:, 0]] - coarse.vertices[edges[:, 1]], axis=1)
+    creases = coarse.crease_edges()
+    for i, key in enumerate(map(tuple, edges.tolist())):
+        if key in creases:
+            lengths[i] = abs(creases[key][2] - creases[key][1])
+    counts = quantize_edge_counts(edges, lengths, coarse.faces, edge_mm=quad_mm)
+    lap("quantize_s", 0.75, "filling the coarse quads")
+    layout = subdivide_layout(coarse, features, edges, counts)
+    lap("subdivide_s", 1.0, "done")
+    report = {
+        "layout": "creases", "quad_mm": quad_mm, "coarse_edge_mm": coarse_mm, "crease_chains": len(features.chains),
+        "spurs_dropped": features.spurs_dropped, "spur_length_mm": features.spur_length_mm,
+        "regions": int(features.face_region.max()) + 1, "coarse_vertices": coarse_vertices,
+        "coarse_triangles": coarse_triangles, "coarse_pairs": len(quads), "coarse_unpaired": int(unpaired.sum()),
+        "coarse_quads": len(coarse.faces), "coarse_rotations": rotations,
+        **times,
+    }
+    return layout, report
