@@ -80,10 +80,13 @@ class DenoiseParams(_Group):
 
 
 class RemeshParams(_Group):
-    layout: Literal["creases", "quadriflow"] = Field("creases", description="creases: a layout made creases first, "
-                                                     "every crease a chain of quad edges by construction "
-                                                     "(QuadriFlow when it cannot be made, and on a mesh with "
-                                                     "holes); quadriflow: QuadriFlow's layout.")
+    layout: Literal["quadriflow", "creases"] = Field("quadriflow", description="quadriflow: QuadriFlow's layout "
+                                                     "(several runs, the one following the creases best kept); "
+                                                     "creases: a layout made creases first, every crease a chain of "
+                                                     "quad edges by construction (QuadriFlow where it cannot be made, "
+                                                     "and on a mesh with holes). creases suits clean CAD meshes; on "
+                                                     "reconstructed scans it makes many more patches "
+                                                     "(bench/results/remesh.md).")
     target_faces: int = Field(3000, ge=100, le=1_000_000, description="Quad faces aimed for "
                               "(about 3,000 on a 50k-point part: finer meshes give segment more, thinner patches).")
     coarse_quads: float = Field(8.0, ge=2, le=32, description="Crease-first layout: the length of its coarse "

@@ -16,7 +16,8 @@ import numpy as np
 
 from cam.remesh.creases import crease_graph
 
-__all__ = ["Chain", "chain_from_points", "closest_arc", "crease_chains", "distance_to_polyline", "points_at"]
+__all__ = ["Chain", "chain_from_points", "chains_from_edges", "closest_arc", "crease_chains", "distance_to_polyline",
+           "points_at"]
 
 # Gentle creases count from this many quad lengths on.
 _MIN_GENTLE = 2.0
@@ -64,15 +65,20 @@ def crease_chains(tv: np.ndarray, tf: np.ndarray, *, crease_angle_deg: float, ge
     """
     graph = crease_graph(tv, tf, gentle_angle_deg)
     sharp = set(map(tuple, graph.edges[graph.edge_angle_deg > crease_angle_deg].tolist()))
-    chains = []
-    for walk in _walks(graph.edges):
-        for piece in _cut_at_turns(walk, tv, corner_turn_deg, quad_mm):
-            chain = _make_chain(piece, tv)
-            if chain.length >= _MIN_GENTLE * quad_mm or any((min(a, b), max(a, b)) in sharp
-                                                            for a, b in itertools.pairwise(piece)):
-                chains.append(chain)
-    chains.sort(key=lambda c: -c.length)
+    chains = [chain for chain in chains_from_edges(tv, graph.edges, corner_turn_deg=corner_turn_deg, quad_mm=quad_mm)
+              if chain.length >= _MIN_GENTLE * quad_mm or any((min(a, b), max(a, b)) in sharp
+                                                              for a, b in itertools.pairwise(chain.ids.tolist()))]
     return chains, graph.face_region
+
+
+def chains_from_edges(tv: np.ndarray, edges: np.ndarray, *, corner_turn_deg: float, quad_mm: float) -> list[Chain]:
+    """Crease edges (int (k, 2) vertex pairs of the mesh whose vertices are ``tv``, mm) walked into chains
+    between the vertices where other than two of them meet, each cut where it turns by more than
+    ``corner_turn_deg`` within half of ``quad_mm`` on either side (a closed one in at least two); longest first."""
+    chains = [_make_chain(piece, tv) for walk in _walks(np.asarray(edges, dtype=np.int64))
+              for piece in _cut_at_turns(walk, tv, corner_turn_deg, quad_mm)]
+    chains.sort(key=lambda c: -c.length)
+    return chains
 
 
 def _make_chain(ids: list[int], tv: np.ndarray) -> Chain:

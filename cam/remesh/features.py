@@ -20,12 +20,14 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cam.mesh.closest import MeshIndex, closest_points, mesh_index, triangle_normals
-from cam.remesh.chains import Chain, chain_from_points, crease_chains, points_at
+from cam.remesh.chains import Chain, chain_from_points, chains_from_edges, crease_chains, points_at
 
 __all__ = ["CreaseFeatures", "SMOOTH", "ON_CHAIN", "CORNER", "find_crease_features"]
 
 # Vertex kinds.
 SMOOTH, ON_CHAIN, CORNER = 0, 1, 2
+# A region narrower than this share of a quad (twice its area over its perimeter) is merged into a neighbour.
+_THIN = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +54,10 @@ class CreaseFeatures:
         Crease chains dropped as spurs.
     spur_length_mm : float
         Their length, mm.
+    thin_dropped : int
+        Crease chains dropped because they bounded a thin region.
+    thin_length_mm : float
+        Their length, mm.
     """
 
     vertices: np.ndarray
@@ -63,6 +69,8 @@ class CreaseFeatures:
     vertex_arc: np.ndarray
     spurs_dropped: int
     spur_length_mm: float
+    thin_dropped: int
+    thin_length_mm: float
     _indexes: dict = field(default_factory=dict, repr=False)
 
     def region_index(self, region: int) -> MeshIndex:
@@ -108,7 +116,8 @@ def find_crease_features(vertices: np.ndarray, triangles: np.ndarray, *, crease_
     corner_turn_deg : float
         A chain that turns by more than this within half a quad has a corner there, degrees.
     quad_mm : float
-        The layout's quad size, mm: chains with a free end shorter than this are spurs and dropped.
+        The layout's quad size, mm: regions narrower than half of it are merged into a neighbour, and chains
+        with a free end shorter than it are spurs and dropped.
 
     Returns
     -------
@@ -119,7 +128,15 @@ def find_crease_features(vertices: np.ndarray, triangles: np.ndarray, *, crease_
     chains, _ = crease_chains(tv, tf, crease_angle_deg=crease_angle_deg, gentle_angle_deg=gentle_angle_deg,
                               corner_turn_deg=corner_turn_deg, quad_mm=quad_mm)
     chains = [half for chain in chains for half in _split_loop(chain)]
+    chains, merged = _merge_thin_regions(tv, tf, chains, _THIN * quad_mm)
     chains, dropped = _drop_spurs(chains, quad_mm)
+    if merged or dropped:
+        # what is left walked anew: pieces that met at a junction whose other creases were dropped join up
+        kept = np.concatenate([np.stack([c.ids[:-1], c.ids[1:]], axis=1) for c in chains]) if chains else []
+        chains = [half for chain in chains_from_edges(tv, kept, corner_turn_deg=corner_turn_deg, quad_mm=quad_mm)
+                  for half in _split_loop(chain)]
+        chains, again = _drop_spurs(chains, quad_mm)
+        dropped += again
     kind = np.full(len(tv), SMOOTH, dtype=np.int8)
     chain_of = np.full(len(tv), -1, dtype=np.int64)
     arc_of = np.zeros(len(tv))
@@ -133,7 +150,8 @@ def find_crease_features(vertices: np.ndarray, triangles: np.ndarray, *, crease_
         chain_of[chain.ids[[0, -1]]] = -1
     return CreaseFeatures(vertices=tv, triangles=tf, chains=chains, face_region=_regions(tf, chains),
                           vertex_kind=kind, vertex_chain=chain_of, vertex_arc=arc_of, spurs_dropped=len(dropped),
-                          spur_length_mm=float(sum(c.length for c in dropped)))
+                          spur_length_mm=float(sum(c.length for c in dropped)), thin_dropped=len(merged),
+                          thin_length_mm=float(sum(c.length for c in merged)))
 
 
 def _split_loop(chain: Chain) -> list[Chain]:
@@ -143,6 +161,74 @@ def _split_loop(chain: Chain) -> list[Chain]:
     mid = len(chain.ids) // 2
     return [chain_from_points(chain.points[:mid + 1], (int(chain.ids[0]), int(chain.ids[mid])), ids=chain.ids[:mid + 1]),
             chain_from_points(chain.points[mid:], (int(chain.ids[mid]), int(chain.ids[-1])), ids=chain.ids[mid:])]
+
+
+def _merge_thin_regions(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], width_mm: float
+                        ) -> tuple[list[Chain], list[Chain]]:
+    """The chains without those dropped to merge thin regions, and the dropped ones.
+
+    A denoised or scanned crease is often found as two parallel lines of gentler edges joined by rungs (a
+    ladder), which cut the surface into slivers no quad fits in. While a region is narrower than ``width_mm``
+    (twice its area over its perimeter), the chain on its border whose edges are least sharp (mean dihedral;
+    the shorter on a tie) is dropped, merging the regions on its two sides.
+    """
+    if not chains:
+        return chains, []
+    region = _regions(tf, chains)
+    p = tv[tf]
+    area = np.bincount(region, weights=0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1))
+    sides, angle = _chain_sides(tv, tf, chains, region)
+    length = np.array([c.length for c in chains])
+    parent = np.arange(len(area))
+
+    def find(r: int) -> int:
+        while parent[r] != r:
+            parent[r] = parent[parent[r]]
+            r = parent[r]
+        return r
+
+    kept = np.ones(len(chains), dtype=bool)
+    while True:
+        roots = np.array([find(r) for r in range(len(area))])
+        a, b = roots[sides[:, 0]], roots[sides[:, 1]]
+        border = kept & (a != b)
+        perimeter = np.bincount(a[border], weights=length[border], minlength=len(area)) + np.bincount(
+            b[border], weights=length[border], minlength=len(area))
+        total = np.bincount(roots, weights=area, minlength=len(area))
+        width = np.where(perimeter > 0, 2.0 * total / np.maximum(perimeter, 1e-300), np.inf)
+        thin = int(np.argmin(width))
+        if not width[thin] < width_mm:
+            break
+        on_it = np.flatnonzero(border & ((a == thin) | (b == thin)))
+        drop = on_it[np.lexsort((length[on_it], angle[on_it]))[0]]
+        kept[drop] = False
+        parent[find(int(a[drop]))] = find(int(b[drop]))
+    return [c for c, k in zip(chains, kept, strict=True) if k], [c for c, k in zip(chains, kept, strict=True) if not k]
+
+
+def _chain_sides(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], region: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The regions on the two sides of each chain (int64 (c, 2), from its first edge) and the mean angle between
+    its edges' two faces' normals (degrees, (c,))."""
+    n = len(tv)
+    edges = np.stack([tf, np.roll(tf, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+    face = np.repeat(np.arange(len(tf)), 3)
+    order = np.argsort(key, kind="stable")
+    key, face = key[order], face[order]
+    p = tv[tf]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    sides = np.empty((len(chains), 2), dtype=np.int64)
+    angle = np.empty(len(chains))
+    for c, chain in enumerate(chains):
+        ids = chain.ids
+        k = np.searchsorted(key, np.minimum(ids[:-1], ids[1:]) * n + np.maximum(ids[:-1], ids[1:]))
+        f1, f2 = face[k], face[k + 1]
+        sides[c] = region[f1[0]], region[f2[0]]
+        cos = np.clip(np.einsum("ij,ij->i", normal[f1], normal[f2]), -1.0, 1.0)
+        angle[c] = float(np.degrees(np.arccos(cos)).mean())
+    return sides, angle
 
 
 def _drop_spurs(chains: list[Chain], quad_mm: float) -> tuple[list[Chain], list[Chain]]:

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from cam import CheckCancel, GeometryError, Progress
+from cam.remesh.chains import Chain, points_at
 from cam.remesh.coarse import coarse_triangulation, edge_table
 from cam.remesh.coarsequads import rotate_to_valence, split_into_quads
 from cam.remesh.features import find_crease_features
@@ -33,6 +34,9 @@ __all__ = ["crease_first_layout"]
 # `_CORNER_TURN_DEG` within half a quad has a corner there (the values `cam.remesh.snap` uses).
 _GENTLE_ANGLE_DEG = 35.0
 _CORNER_TURN_DEG = 40.0
+# A crease's quad edges are chords that stay within this share of the part's diagonal of it (half the
+# tolerance of issue 35's crease recall).
+_CHORD = 0.001
 # A coarse collapse stops where the merged planes lie farther than this share of the coarse edge from the vertex.
 _COARSE_ERROR = 0.05
 
@@ -110,19 +114,39 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
     edges, _ = edge_table(coarse.faces)
     lengths = np.linalg.norm(coarse.vertices[edges[:, 0]] - coarse.vertices[edges[:, 1]], axis=1)
     creases = coarse.crease_edges()
+    fewest = np.ones(len(edges), dtype=np.int64)
+    chord_mm = _CHORD * float(np.linalg.norm(np.ptp(tv, axis=0)))
     for i, key in enumerate(map(tuple, edges.tolist())):
         if key in creases:
-            lengths[i] = abs(creases[key][2] - creases[key][1])
-    counts = quantize_edge_counts(edges, lengths, coarse.faces, edge_mm=quad_mm)
+            chain, arc_a, arc_b = creases[key]
+            lengths[i] = abs(arc_b - arc_a)
+            fewest[i] = _pieces_for_chords(features.chains[chain], arc_a, arc_b, chord_mm)
+    counts = quantize_edge_counts(edges, lengths, coarse.faces, edge_mm=quad_mm, min_counts=fewest)
     lap("quantize_s", 0.75, "filling the coarse quads")
     layout = subdivide_layout(coarse, features, edges, counts)
     lap("subdivide_s", 1.0, "done")
     report = {
         "layout": "creases", "quad_mm": quad_mm, "coarse_edge_mm": coarse_mm, "crease_chains": len(features.chains),
         "spurs_dropped": features.spurs_dropped, "spur_length_mm": features.spur_length_mm,
+        "thin_dropped": features.thin_dropped, "thin_length_mm": features.thin_length_mm,
         "regions": int(features.face_region.max()) + 1, "coarse_vertices": coarse_vertices,
         "coarse_triangles": coarse_triangles, "coarse_pairs": len(quads), "coarse_unpaired": int(unpaired.sum()),
         "coarse_quads": len(coarse.faces), "coarse_rotations": rotations,
         **times,
     }
     return layout, report
+
+
+def _pieces_for_chords(chain: Chain, arc_a: float, arc_b: float, chord_mm: float) -> int:
+    """Equal pieces of the chain between arc lengths ``arc_a`` and ``arc_b`` (mm) whose chords stay within
+    ``chord_mm`` of it: a chord's sagitta falls with the square of the pieces over a steady curve."""
+    lo, hi = sorted((arc_a, arc_b))
+    inside = (chain.arc > lo) & (chain.arc < hi)
+    if not inside.any():
+        return 1
+    a, b = points_at(chain, np.array([lo, hi]))
+    p = chain.points[inside]
+    ab = b - a
+    t = np.clip((p - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+    sagitta = float(np.linalg.norm(a + t[:, None] * ab - p, axis=1).max())
+    return max(1, int(np.ceil(np.sqrt(sagitta / chord_mm))))

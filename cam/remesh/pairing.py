@@ -82,7 +82,25 @@ def pair_triangles(vertices: np.ndarray, triangles: np.ndarray, crease_edges: se
         f1, f2 = faces[e]
         pair_edge[(f1, f2)] = pair_edge[(f2, f1)] = e
     chosen = [pair_edge[(f, int(mate[f]))] for f in range(len(triangles)) if mate[f] > f]
+    chosen = _keep_three_faces(edges, triangles, chosen, score)
     return quads[chosen], faces[chosen]
+
+
+def _keep_three_faces(edges: np.ndarray, triangles: np.ndarray, chosen: list[int], score: np.ndarray) -> list[int]:
+    """The pairs less those that leave a vertex with fewer than three faces (a pair whose diagonal ends at a
+    vertex takes one face from it; with two it would be a valence-2 vertex of the quads): the worst pair at such
+    a vertex is undone until none is left."""
+    faces_at = np.bincount(triangles.ravel(), minlength=int(triangles.max()) + 1)
+    chosen = sorted(chosen, key=lambda e: score[e])
+    while True:
+        count = faces_at.copy()
+        for e in chosen:
+            count[edges[e]] -= 1
+        low = set(np.flatnonzero(count < 3).tolist())
+        undo = next((e for e in chosen if low & set(edges[e].tolist())), None)
+        if undo is None:
+            return chosen
+        chosen.remove(undo)
 
 
 def _greedy(faces: np.ndarray, score: np.ndarray, usable: np.ndarray, n: int) -> np.ndarray:

@@ -18,8 +18,8 @@ __all__ = ["quantize_edge_counts"]
 _LONGEST = 3.0
 
 
-def quantize_edge_counts(edges: np.ndarray, lengths_mm: np.ndarray, quads: np.ndarray, *, edge_mm: float
-                         ) -> np.ndarray:
+def quantize_edge_counts(edges: np.ndarray, lengths_mm: np.ndarray, quads: np.ndarray, *, edge_mm: float,
+                         min_counts: np.ndarray | None = None) -> np.ndarray:
     """Quad edges per coarse edge.
 
     Parameters
@@ -32,6 +32,8 @@ def quantize_edge_counts(edges: np.ndarray, lengths_mm: np.ndarray, quads: np.nd
         The coarse quads; their sides are among ``edges``.
     edge_mm : float
         The quad edge length aimed for, mm (> 0).
+    min_counts : (e,) int64 or None
+        The fewest pieces each edge may be cut into (a curved crease's, so that its chords stay near it).
 
     Returns
     -------
@@ -51,4 +53,6 @@ def quantize_edge_counts(edges: np.ndarray, lengths_mm: np.ndarray, quads: np.nd
     longest = np.zeros(len(mean))
     np.maximum.at(longest, cls, lengths_mm)
     count = np.maximum(np.rint(mean / edge_mm), np.ceil(longest / (_LONGEST * edge_mm)))
+    if min_counts is not None:
+        np.maximum.at(count, cls, min_counts)
     return np.maximum(1, count).astype(np.int64)[cls]

@@ -19,7 +19,7 @@ from cam.remesh.features import CreaseFeatures
 __all__ = ["QuadLayout", "subdivide_layout"]
 
 # Smoothing rounds of the finished layout and the share of the way to the neighbours' centre per round.
-_SMOOTH_ROUNDS = 8
+_SMOOTH_ROUNDS = 30
 _SMOOTH_STEP = 0.5
 
 

@@ -1,0 +1,109 @@
+"""Tests for the crease-first layout (cam.remesh.layout and its steps) and its place in remesh_quads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from cam.params import RemeshParams
+from cam.remesh import remesh_quads
+from cam.remesh.check import inspect_quad_mesh
+from cam.remesh.coarse import edge_table
+from cam.remesh.features import find_crease_features
+from cam.remesh.pairing import pair_triangles
+from cam.remesh.quantize import quantize_edge_counts
+from tests import csgparts
+
+pytest.importorskip("manifold3d")
+
+
+def _signed_volume(v: np.ndarray, faces: np.ndarray) -> float:
+    tris = np.vstack([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]]) if faces.shape[1] == 4 else faces
+    p = v[tris]
+    return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+
+
+@pytest.mark.parametrize("make", [csgparts.bracket, csgparts.box_pocket_fillet, csgparts.cylinder_chamfer,
+                                  csgparts.ridge40], ids=lambda f: f.__name__)
+def test_the_issue_s_four_parts_get_closed_layouts_that_follow_every_crease(make):
+    vertices, triangles = make()
+    result = remesh_quads(vertices, triangles, RemeshParams(layout="creases", target_faces=1500))
+    report = result.report
+    assert report["layout"] == "creases" and "layout_fallback" not in report
+    check = inspect_quad_mesh(result.vertices, result.faces, expected_boundary_loops=0)
+    assert check.problems == () and check.boundary_loop_lengths == ()
+    # issue 35: every crease (over 50°, within 0.2 % of the diagonal) followed, no quad across one
+    assert report["crease_recall"] == 1.0 and report["straddling_quads"] == 0
+    # the same solid, faced the same way: the volume within half a percent (the quads cut curved faces by chords)
+    assert _signed_volume(result.vertices, result.faces) == pytest.approx(_signed_volume(vertices, triangles),
+                                                                          rel=5e-3)
+    assert report["hausdorff_ratio"] < 0.01
+
+
+def test_a_box_s_layout_has_its_corners_and_edges_exactly():
+    box = trimesh.creation.box([40.0, 30.0, 20.0])
+    result = remesh_quads(box.vertices, box.faces, RemeshParams(layout="creases", target_faces=600))
+    v = result.vertices
+    # every vertex on the box (on one of its planes), and the box's 8 corners among them
+    assert np.abs(np.abs(v) - [20.0, 15.0, 10.0]).min(axis=1).max() < 1e-9
+    corners = np.array([[x, y, z] for x in (-20, 20) for y in (-15, 15) for z in (-10, 10)], dtype=float)
+    assert np.linalg.norm(v[:, None] - corners[None], axis=2).min(axis=0).max() < 1e-9
+    assert result.report["crease_recall"] == 1.0 and result.report["straddling_quads"] == 0
+    # a quad never has corners on two faces of the box unless they lie on the edge between
+    on_face = np.isclose(np.abs(v), [20.0, 15.0, 10.0])
+    shared = np.logical_and.reduce(on_face[result.faces], axis=1)
+    assert shared.any(axis=1).all()
+
+
+def test_a_mesh_with_a_hole_falls_back_to_quadriflow_and_says_why():
+    pytest.importorskip("pyQuadriFlow")
+    box = trimesh.creation.box([40.0, 30.0, 20.0]).subdivide().subdivide()
+    keep = box.triangles_center[:, 2] < 9.9  # the top face removed: one boundary loop
+    vertices, faces = box.vertices, box.faces[keep]
+    result = remesh_quads(vertices, faces, RemeshParams(layout="creases", target_faces=300, timeout_s=120))
+    assert result.report["layout"] == "quadriflow"
+    assert "boundary loop" in result.report["layout_fallback"]
+
+
+def test_a_thin_chamfer_is_merged_into_a_face_and_short_spurs_are_dropped():
+    from manifold3d import Manifold
+
+    # a 0.2 mm chamfer along one edge of a box: a strip no quad of ~1.5 mm fits in
+    cut = Manifold.cube([1.0, 50.0, 1.0], center=True).rotate([0.0, 45.0, 0.0]).translate([40.0, 15.0, 20.0])
+    vertices, triangles = csgparts.solid_mesh(Manifold.cube([40.0, 30.0, 20.0]) - cut.scale([0.2, 1.0, 0.2])
+                                              .translate([32.0, 0.0, 16.0]))
+    features = find_crease_features(vertices, triangles, crease_angle_deg=50.0, gentle_angle_deg=35.0,
+                                    corner_turn_deg=40.0, quad_mm=1.5)
+    assert features.thin_dropped >= 1
+    assert features.face_region.max() + 1 == 6  # the six faces of the box, the strip merged into one of them
+
+
+def test_pairs_never_take_a_crease_as_their_diagonal():
+    # a square pyramid: the unit square on top (two triangles) over an apex below
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.5, 0.5, -1.0]])
+    t = np.array([[0, 1, 2], [0, 2, 3], [1, 0, 4], [2, 1, 4], [3, 2, 4], [0, 3, 4]])
+    quads, pairs = pair_triangles(v, t, set())
+    top = [q for q, p in zip(quads.tolist(), pairs.tolist(), strict=True) if set(p) == {0, 1}]
+    assert len(top) == 1 and sorted(top[0]) == [0, 1, 2, 3]
+    # the quad runs round the square counter-clockwise like its triangles
+    q = v[top[0]]
+    assert np.cross(q[1] - q[0], q[2] - q[1])[2] > 0
+    _, pairs = pair_triangles(v, t, {(0, 2)})
+    assert not any(set(p) == {0, 1} for p in pairs.tolist())
+
+
+def test_edge_counts_are_equal_across_every_quad_and_follow_the_mean_length():
+    # a strip of two coarse quads, 0-1-2 over 3-4-5: the rungs 0-3, 1-4, 2-5 are one class
+    quads = np.array([[0, 1, 4, 3], [1, 2, 5, 4]])
+    edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5], [0, 3], [1, 4], [2, 5]])
+    lengths = np.array([4.0, 10.0, 4.2, 9.8, 3.0, 3.2, 2.8])
+    counts = quantize_edge_counts(edges, lengths, quads, edge_mm=1.0)
+    by = dict(zip(map(tuple, edges.tolist()), counts.tolist()))
+    assert by[(0, 1)] == by[(3, 4)] == 4 and by[(1, 2)] == by[(4, 5)] == 10
+    assert by[(0, 3)] == by[(1, 4)] == by[(2, 5)] == 3
+
+
+def test_edge_table_refuses_a_mesh_that_is_not_closed():
+    with pytest.raises(ValueError, match="closed"):
+        edge_table(np.array([[0, 1, 2]]))
