@@ -89,7 +89,7 @@ class RemeshParams(_Group):
                                                      "(bench/results/remesh.md).")
     target_faces: int = Field(3000, ge=100, le=1_000_000, description="Quad faces aimed for "
                               "(about 3,000 on a 50k-point part: finer meshes give segment more, thinner patches).")
-    coarse_quads: float = Field(8.0, ge=2, le=32, description="Crease-first layout: the length of its coarse "
+    coarse_quads: float = Field(12.0, ge=2, le=32, description="Crease-first layout: the length of its coarse "
                                 "mesh's edges, in quads. Longer: fewer extraordinary vertices (and patches), and "
                                 "curved faces still get shorter ones.")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="QuadriFlow's seed for the first attempt.")

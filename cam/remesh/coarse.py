@@ -16,7 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from cam import CheckCancel
-from cam.remesh._collapsekernel import collapse_short_edges, plane_quadrics, point_plane_quadrics
+from cam.remesh._collapsekernel import (
+    collapse_short_edges,
+    plane_quadrics,
+    point_plane_quadrics,
+)
 from cam.remesh.features import CORNER, ON_CHAIN, SMOOTH, CreaseFeatures
 
 __all__ = ["CoarseMesh", "EditableMesh", "coarse_triangulation", "edge_table"]

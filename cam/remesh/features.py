@@ -20,9 +20,15 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cam.mesh.closest import MeshIndex, closest_points, mesh_index, triangle_normals
-from cam.remesh.chains import Chain, chain_from_points, chains_from_edges, crease_chains, points_at
+from cam.remesh.chains import (
+    Chain,
+    chain_from_points,
+    chains_from_edges,
+    crease_chains,
+    points_at,
+)
 
-__all__ = ["CreaseFeatures", "SMOOTH", "ON_CHAIN", "CORNER", "find_crease_features"]
+__all__ = ["CORNER", "ON_CHAIN", "SMOOTH", "CreaseFeatures", "find_crease_features"]
 
 # Vertex kinds.
 SMOOTH, ON_CHAIN, CORNER = 0, 1, 2

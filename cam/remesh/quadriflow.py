@@ -28,8 +28,8 @@ from cam.mesh.rows import unique_pairs
 from cam.params import RemeshParams, SegmentParams
 from cam.remesh.accept import accept_quads, hausdorff_to_mesh
 from cam.remesh.check import inspect_quad_mesh
-from cam.remesh.layout import crease_first_layout
 from cam.remesh.creases import measure_crease_conformity, measure_crease_following
+from cam.remesh.layout import crease_first_layout
 from cam.remesh.process import QuadriflowFailed, QuadriflowRuns
 from cam.remesh.snap import snap_to_creases
 

@@ -41,8 +41,12 @@ def test_the_issue_s_four_parts_get_closed_layouts_that_follow_every_crease(make
     assert report["hausdorff_ratio"] < 0.01
 
 
-def test_a_box_s_layout_has_its_corners_and_edges_exactly():
+@pytest.mark.parametrize("subdivisions", [0, 4], ids=["12 triangles", "3072 triangles"])
+def test_a_box_s_layout_has_its_corners_and_edges_exactly(subdivisions):
+    # 12 triangles: the coarse mesh is made by splits; 3,072: by collapses (the compiled kernel) as well
     box = trimesh.creation.box([40.0, 30.0, 20.0])
+    for _ in range(subdivisions):
+        box = box.subdivide()
     result = remesh_quads(box.vertices, box.faces, RemeshParams(layout="creases", target_faces=600))
     v = result.vertices
     # every vertex on the box (on one of its planes), and the box's 8 corners among them
