@@ -86,7 +86,7 @@ def _normal(V, a, b, c):
 
 
 @njit(cache=True)
-def _collapse_cost(u, v, V, F, alive, kind, cn, Q, W, start, count, refs, mark, stamp, seen, max_len2, max_err2,
+def _collapse_cost(u, v, V, F, alive, kind, cn, Q, W, start, count, refs, mark, stamp, seen, size, high, err,
                    cos_turn, min_area2):
     """The quadric error of collapsing u into v, or -1 where that collapse is not allowed."""
     if kind[u] == _CORNER:
@@ -131,18 +131,19 @@ def _collapse_cost(u, v, V, F, alive, kind, cn, Q, W, start, count, refs, mark, 
         for w in (a1, b1, c1):
             if w != v:
                 dx, dy, dz = V[w, 0] - V[v, 0], V[w, 1] - V[v, 1], V[w, 2] - V[v, 2]
-                if dx * dx + dy * dy + dz * dz > max_len2:
+                limit = high * min(size[v], size[w])
+                if dx * dx + dy * dy + dz * dz > limit * limit:
                     return -1.0
     q = Q[u] + Q[v]
-    err = max(_quadric_at(q, V[v, 0], V[v, 1], V[v, 2]), 0.0) / max(W[u] + W[v], 1e-300)
-    if err > max_err2:
+    cost = max(_quadric_at(q, V[v, 0], V[v, 1], V[v, 2]), 0.0) / max(W[u] + W[v], 1e-300)
+    if cost > (err * size[v]) ** 2:
         return -1.0
-    return err
+    return cost
 
 
 @njit(cache=True)
-def collapse_short_edges(V, F, alive, kind, cn, Q, W, min_len, max_len, max_err, max_turn_deg, passes):
-    """Collapse the edges shorter than ``min_len`` mm, shorter ones first, where the rules allow.
+def collapse_short_edges(V, F, alive, kind, cn, Q, W, size, low, high, err, max_turn_deg, passes):
+    """Collapse the edges shorter than ``low`` times their ends' size, shorter ones first, where the rules allow.
 
     Parameters
     ----------
@@ -158,13 +159,16 @@ def collapse_short_edges(V, F, alive, kind, cn, Q, W, min_len, max_len, max_err,
         The two chain neighbours of each vertex inside a chain (-1 for the others); kept up to date.
     Q, W : (n, 10) float64, (n,) float64
         Plane quadrics and their weights (`plane_quadrics`); v takes u's.
-    min_len, max_len, max_err : float
-        Edges under ``min_len`` mm are collapsed unless an edge would grow over ``max_len`` mm or the quadric
-        error (mean squared distance, mm²) would exceed ``max_err`` squared.
+    size : (n,) float64
+        The edge length each vertex aims for, mm.
+    low, high, err : float
+        An edge under ``low`` times the smaller size of its ends is collapsed unless an edge would grow over
+        ``high`` times the smaller size of its ends, or the quadric error (root mean square distance of the
+        planes merged, mm) would exceed ``err`` times the size of the vertex kept.
     max_turn_deg : float
         Largest turn of a triangle's normal in one collapse, degrees.
     passes : int
-        The length threshold grows to ``min_len`` in this many sweeps.
+        The length threshold grows to ``low`` times the sizes in this many sweeps.
 
     Returns
     -------
@@ -177,14 +181,11 @@ def collapse_short_edges(V, F, alive, kind, cn, Q, W, min_len, max_len, max_err,
     seen = np.full(n, -1, dtype=np.int64)
     stamp = 0
     cos_turn = math.cos(math.radians(max_turn_deg))
-    max_len2 = max_len * max_len
-    max_err2 = max_err * max_err
-    min_area2 = (1e-9 * min_len * min_len) ** 2
+    min_area2 = (1e-9 * size.min() * size.min()) ** 2
     spare = 4 * m + 64
     done = 0
     for p in range(passes):
-        threshold = min_len * (p + 1) / passes
-        thr2 = threshold * threshold
+        share = low * (p + 1) / passes
         start, count, refs, used = _build_refs(F, alive, n, spare)
         for f in range(m):
             if not alive[f]:
@@ -193,14 +194,15 @@ def collapse_short_edges(V, F, alive, kind, cn, Q, W, min_len, max_len, max_err,
                 a = F[f, j]
                 b = F[f, (j + 1) % 3]
                 dx, dy, dz = V[a, 0] - V[b, 0], V[a, 1] - V[b, 1], V[a, 2] - V[b, 2]
-                if dx * dx + dy * dy + dz * dz >= thr2:
+                threshold = share * min(size[a], size[b])
+                if dx * dx + dy * dy + dz * dz >= threshold * threshold:
                     continue
                 stamp += 1
                 cost_ab = _collapse_cost(a, b, V, F, alive, kind, cn, Q, W, start, count, refs, mark, stamp, seen,
-                                         max_len2, max_err2, cos_turn, min_area2)
+                                         size, high, err, cos_turn, min_area2)
                 stamp += 1
                 cost_ba = _collapse_cost(b, a, V, F, alive, kind, cn, Q, W, start, count, refs, mark, stamp, seen,
-                                         max_len2, max_err2, cos_turn, min_area2)
+                                         size, high, err, cos_turn, min_area2)
                 if cost_ab < 0 and cost_ba < 0:
                     continue
                 if cost_ba < 0 or (0 <= cost_ab <= cost_ba):

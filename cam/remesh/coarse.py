@@ -27,6 +27,9 @@ __all__ = ["CoarseMesh", "EditableMesh", "coarse_triangulation", "edge_table"]
 
 # Isotropic remeshing's split and collapse lengths, as multiples of the target edge length.
 _SPLIT, _COLLAPSE = 4.0 / 3.0, 4.0 / 5.0
+# A region aims for edges no longer than this many times its width (a fillet strip between two creases would
+# otherwise be spanned by slivers from one crease to the other).
+_WIDTH = 6.0
 # A collapse may turn a triangle's normal this far at most, degrees.
 _MAX_TURN_DEG = 35.0
 # Vertex moves per round, as a share of the way to the neighbours' centre.
@@ -87,11 +90,14 @@ class CoarseMesh:
         return out
 
 
-def _angle(V: np.ndarray, at: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Angle (rad) at vertices ``at`` between the directions to ``p`` and to ``q``."""
-    u, w = V[p] - V[at], V[q] - V[at]
-    cos = np.einsum("ij,ij->i", u, w) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-300)
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+def _flip_gain(valence: np.ndarray, counted: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+               d: np.ndarray) -> np.ndarray:
+    """Squared distance from six of the valences before flipping edge a-b (third corners c and d) less after:
+    a and b lose an edge, c and d gain one; vertices not ``counted`` (chain ends) add nothing."""
+    return (counted[a] * ((valence[a] - 6) ** 2 - (valence[a] - 7) ** 2)
+            + counted[b] * ((valence[b] - 6) ** 2 - (valence[b] - 7) ** 2)
+            + counted[c] * ((valence[c] - 6) ** 2 - (valence[c] - 5) ** 2)
+            + counted[d] * ((valence[d] - 6) ** 2 - (valence[d] - 5) ** 2))
 
 
 def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -119,9 +125,13 @@ def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([lo[0::2], hi[0::2]], axis=1), faces_of
 
 
-def coarse_triangulation(features: CreaseFeatures, *, edge_mm: float, max_error_mm: float, rounds: int = 6,
-                         check_cancel: CheckCancel | None = None) -> EditableMesh:
+def coarse_triangulation(features: CreaseFeatures, *, edge_mm: float, min_edge_mm: float, error_share: float = 0.05,
+                         rounds: int = 6, check_cancel: CheckCancel | None = None) -> EditableMesh:
     """Remesh the features' triangle mesh to edges about ``edge_mm`` long, its creases kept as edge paths.
+
+    A region narrower than ``edge_mm`` (`CreaseFeatures.region_width_mm`) aims for edges as long as it is wide,
+    but not under ``min_edge_mm``: triangles between two creases closer than their edges are long would be
+    slivers that pair into no quad.
 
     Parameters
     ----------
@@ -129,9 +139,11 @@ def coarse_triangulation(features: CreaseFeatures, *, edge_mm: float, max_error_
         The part's mesh, chains and regions.
     edge_mm : float
         Target edge length, mm (> 0).
-    max_error_mm : float
-        A collapse is refused where the planes merged into the vertex kept lie farther from it than this
-        (root mean square), mm: curved regions keep shorter edges.
+    min_edge_mm : float
+        The shortest target a narrow region gets, mm (> 0).
+    error_share : float
+        A collapse is refused where the planes merged into the vertex kept lie farther from it (root mean
+        square) than this share of its target length: curved regions keep shorter edges.
     rounds : int
         Rounds of split, collapse, flip and smoothing.
     check_cancel : callable or None
@@ -142,12 +154,14 @@ def coarse_triangulation(features: CreaseFeatures, *, edge_mm: float, max_error_
     EditableMesh
         The coarse triangle mesh, to be edited on (`EditableMesh.result` is its `CoarseMesh`).
     """
-    if not edge_mm > 0 or not max_error_mm > 0:
-        raise ValueError(f"need edge_mm > 0 and max_error_mm > 0, got {edge_mm} and {max_error_mm}")
+    if not edge_mm > 0 or not min_edge_mm > 0 or not error_share > 0:
+        raise ValueError(f"need edge_mm, min_edge_mm and error_share > 0, got {edge_mm}, {min_edge_mm} and "
+                         f"{error_share}")
     mesh = EditableMesh(features)
+    region_size = np.minimum(edge_mm, np.maximum(_WIDTH * features.region_width_mm, min_edge_mm))
     for _ in range(rounds):
-        for step in (lambda: mesh.split_long(_SPLIT * edge_mm),
-                     lambda: mesh.collapse_short(_COLLAPSE * edge_mm, _SPLIT * edge_mm, max_error_mm),
+        for step in (lambda: mesh.split_long(region_size),
+                     lambda: mesh.collapse_short(region_size, error_share),
                      mesh.flip_to_valence, mesh.relax):
             step()
             if check_cancel is not None:
@@ -214,16 +228,24 @@ class EditableMesh:
 
     # -- the four steps
 
-    def split_long(self, max_mm: float) -> None:
-        """Split every edge over ``max_mm`` at its middle (on the chain for a crease edge), in rounds of edges
-        whose triangles are all different."""
+    def vertex_size(self, region_size: np.ndarray) -> np.ndarray:
+        """Each vertex's target edge length: the least of its faces' regions' (``region_size`` mm per region)."""
+        size = np.full(len(self.V), np.inf)
+        np.minimum.at(size, self.F.ravel(), np.repeat(region_size[self.region], self.F.shape[1]))
+        return size
+
+    def split_long(self, region_size: np.ndarray) -> None:
+        """Split every edge over 4/3 of its ends' smaller target length at its middle (on the chain for a crease
+        edge), in rounds of edges whose triangles are all different."""
         for _ in range(64):
             edges, faces = edge_table(self.F)
+            size = self.vertex_size(region_size)
             length = np.linalg.norm(self.V[edges[:, 0]] - self.V[edges[:, 1]], axis=1)
-            long = np.flatnonzero(length > max_mm)
+            over = length / np.minimum(size[edges[:, 0]], size[edges[:, 1]])
+            long = np.flatnonzero(over > _SPLIT)
             if not len(long):
                 return
-            long = long[np.argsort(-length[long], kind="stable")]
+            long = long[np.argsort(-over[long], kind="stable")]
             taken = np.zeros(len(self.F), dtype=bool)
             chosen = []
             for e in long.tolist():
@@ -266,65 +288,50 @@ class EditableMesh:
         self.F = np.concatenate([self.F, np.stack([m, b, c], axis=1), np.stack([m, a, d], axis=1)])
         self.region = np.concatenate([self.region, self.region[f1], self.region[f2]])
 
-    def collapse_short(self, min_mm: float, max_mm: float, max_error_mm: float) -> None:
-        """Collapse the edges under ``min_mm`` where no edge grows over ``max_mm`` (`collapse_short_edges`)."""
+    def collapse_short(self, region_size: np.ndarray, error_share: float) -> None:
+        """Collapse the edges under 4/5 of their ends' smaller target length where no edge grows over 4/3 of it
+        (`collapse_short_edges`)."""
         alive = np.ones(len(self.F), dtype=bool)
         kind = self.kind.copy()
-        collapse_short_edges(self.V, self.F, alive, kind, self._chain_neighbours(), self.Q, self.W, min_mm, max_mm,
-                             max_error_mm, _MAX_TURN_DEG, 8)
+        collapse_short_edges(self.V, self.F, alive, kind, self._chain_neighbours(), self.Q, self.W,
+                             self.vertex_size(region_size), _COLLAPSE, _SPLIT, error_share, _MAX_TURN_DEG, 8)
         self.F, self.region = self.F[alive], self.region[alive]
         self._compact()
 
     def flip_to_valence(self) -> None:
-        """Flip edges on no chain where that brings the four vertices' valences nearer six (chain ends left out)."""
-
-        def gain(a, b, c, d, valence):
-            weight = (self.kind != CORNER).astype(np.int64)
-            # squared distance from six before the flip less after it: a and b lose an edge, c and d gain one
-            return (weight[a] * ((valence[a] - 6) ** 2 - (valence[a] - 7) ** 2)
-                    + weight[b] * ((valence[b] - 6) ** 2 - (valence[b] - 7) ** 2)
-                    + weight[c] * ((valence[c] - 6) ** 2 - (valence[c] - 5) ** 2)
-                    + weight[d] * ((valence[d] - 6) ** 2 - (valence[d] - 5) ** 2)).astype(float)
-
-        self._flip(gain)
-
-    def flip_to_delaunay(self) -> None:
-        """Flip edges on no chain whose two opposite angles sum to over 180° (the triangles pair into convex quads
-        more often without such obtuse pairs)."""
-
-        def gain(a, b, c, d, valence):
-            return _angle(self.V, c, a, b) + _angle(self.V, d, a, b) - np.pi
-
-        self._flip(gain)
-
-    def _flip(self, gain_of) -> None:
-        """Flip edges on no chain whose gain (``gain_of(a, b, c, d, valence)``: edge a-b, third corners c and d)
-        is positive, best first, where both new triangles face the way the old ones did, in rounds of flips with
-        distinct vertices (so the gains computed stay true)."""
-        for _ in range(16):
+        """Flip edges on no chain where that brings the four vertices' valences nearer six (chain ends left out)
+        and both new triangles face the way the old ones did: best first, each gain taken with the valences
+        as the flips before it left them, a triangle flipped once a round (a lat-long sphere's pole, of valence
+        96, loses many edges in one round)."""
+        counted = (self.kind != CORNER).astype(np.int64)
+        for _ in range(32):
             creases = self.result().crease_edges()
             edges, faces = edge_table(self.F)
             a, b = edges[:, 0], edges[:, 1]
             c = self.F[faces[:, 0]].sum(axis=1) - a - b
             d = self.F[faces[:, 1]].sum(axis=1) - a - b
             valence = np.bincount(edges.ravel(), minlength=len(self.V))
-            gain = gain_of(a, b, c, d, valence)
+            gain = _flip_gain(valence, counted, a, b, c, d)
             crease = np.array([(x, y) in creases for x, y in edges.tolist()], dtype=bool)
-            candidates = np.flatnonzero((gain > 0) & ~crease & (valence[a] > 3) & (valence[b] > 3))
+            candidates = np.flatnonzero((gain > 0) & ~crease)
             if not len(candidates):
                 return
             existing = set(map(tuple, edges.tolist()))
-            touched = np.zeros(len(self.V), dtype=bool)
+            taken = np.zeros(len(self.F), dtype=bool)
             flipped = 0
             for e in candidates[np.argsort(-gain[candidates], kind="stable")].tolist():
                 ea, eb, ec, ed = int(a[e]), int(b[e]), int(c[e]), int(d[e])
-                if touched[[ea, eb, ec, ed]].any() or ec == ed:
+                f1, f2 = faces[e]
+                if taken[f1] or taken[f2] or ec == ed or min(valence[ea], valence[eb]) <= 3:
+                    continue
+                if _flip_gain(valence, counted, *(np.array([x]) for x in (ea, eb, ec, ed)))[0] <= 0:
                     continue
                 if (min(ec, ed), max(ec, ed)) in existing or not self._flip_keeps_facing(ea, eb, ec, ed):
                     continue
-                f1, f2 = faces[e]
-                touched[[ea, eb, ec, ed]] = True
+                taken[f1] = taken[f2] = True
                 existing.add((min(ec, ed), max(ec, ed)))
+                valence[[ea, eb]] -= 1
+                valence[[ec, ed]] += 1
                 # f1 ran a -> b (third corner c), f2 b -> a (third d): the new pair is (a, d, c) and (d, b, c)
                 self.F[f1] = (ea, ed, ec)
                 self.F[f2] = (ed, eb, ec)

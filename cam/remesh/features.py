@@ -64,6 +64,9 @@ class CreaseFeatures:
         Crease chains dropped because they bounded a thin region.
     thin_length_mm : float
         Their length, mm.
+    region_width_mm : (r,) float64
+        Each region's width: twice its area over the length of the chains between it and other regions, mm
+        (infinite for a region no chain bounds).
     """
 
     vertices: np.ndarray
@@ -77,6 +80,7 @@ class CreaseFeatures:
     spur_length_mm: float
     thin_dropped: int
     thin_length_mm: float
+    region_width_mm: np.ndarray
     _indexes: dict = field(default_factory=dict, repr=False)
 
     def region_index(self, region: int) -> MeshIndex:
@@ -154,7 +158,9 @@ def find_crease_features(vertices: np.ndarray, triangles: np.ndarray, *, crease_
     for chain in chains:
         kind[chain.ids[[0, -1]]] = CORNER
         chain_of[chain.ids[[0, -1]]] = -1
-    return CreaseFeatures(vertices=tv, triangles=tf, chains=chains, face_region=_regions(tf, chains),
+    region = _regions(tf, chains)
+    return CreaseFeatures(vertices=tv, triangles=tf, chains=chains, face_region=region,
+                          region_width_mm=_region_widths(tv, tf, chains, region),
                           vertex_kind=kind, vertex_chain=chain_of, vertex_arc=arc_of, spurs_dropped=len(dropped),
                           spur_length_mm=float(sum(c.length for c in dropped)), thin_dropped=len(merged),
                           thin_length_mm=float(sum(c.length for c in merged)))
@@ -210,6 +216,20 @@ def _merge_thin_regions(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], wid
         kept[drop] = False
         parent[find(int(a[drop]))] = find(int(b[drop]))
     return [c for c, k in zip(chains, kept, strict=True) if k], [c for c, k in zip(chains, kept, strict=True) if not k]
+
+
+def _region_widths(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], region: np.ndarray) -> np.ndarray:
+    """Twice each region's area over its perimeter of chains (those with another region on their other side), mm."""
+    p = tv[tf]
+    area = np.bincount(region, weights=0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1))
+    perimeter = np.zeros(len(area))
+    if chains:
+        sides, _ = _chain_sides(tv, tf, chains, region)
+        length = np.array([c.length for c in chains])
+        border = sides[:, 0] != sides[:, 1]
+        np.add.at(perimeter, sides[border, 0], length[border])
+        np.add.at(perimeter, sides[border, 1], length[border])
+    return np.where(perimeter > 0, 2.0 * area / np.maximum(perimeter, 1e-300), np.inf)
 
 
 def _chain_sides(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], region: np.ndarray

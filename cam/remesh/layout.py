@@ -37,7 +37,7 @@ _CORNER_TURN_DEG = 40.0
 # A crease's quad edges are chords that stay within this share of the part's diagonal of it (three quarters of
 # the tolerance of issue 35's crease recall).
 _CHORD = 0.0015
-# A coarse collapse stops where the merged planes lie farther than this share of the coarse edge from the vertex.
+# A coarse collapse stops where the merged planes lie farther than this share of the target edge from the vertex.
 _COARSE_ERROR = 0.05
 
 
@@ -99,7 +99,7 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
     features = find_crease_features(tv, tf, crease_angle_deg=crease_angle_deg, gentle_angle_deg=_GENTLE_ANGLE_DEG,
                                     corner_turn_deg=_CORNER_TURN_DEG, quad_mm=quad_mm)
     lap("features_s", 0.1, "a coarse mesh along the creases")
-    mesh = coarse_triangulation(features, edge_mm=coarse_mm, max_error_mm=_COARSE_ERROR * coarse_mm,
+    mesh = coarse_triangulation(features, edge_mm=coarse_mm, min_edge_mm=2.0 * quad_mm, error_share=_COARSE_ERROR,
                                 check_cancel=check_cancel)
     coarse_vertices, coarse_triangles = len(mesh.V), len(mesh.F)
     lap("coarse_s", 0.5, "pairing its triangles")
