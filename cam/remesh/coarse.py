@@ -22,6 +22,12 @@ from cam.remesh._collapsekernel import (
     point_plane_quadrics,
 )
 from cam.remesh.features import CORNER, ON_CHAIN, SMOOTH, CreaseFeatures
+from cam.remesh.relax import (
+    face_normals,
+    neighbour_centres,
+    slide_on_surface,
+    undo_turned,
+)
 
 __all__ = ["CoarseMesh", "EditableMesh", "coarse_triangulation", "edge_table"]
 
@@ -348,40 +354,28 @@ class EditableMesh:
         return all(np.dot(n, o) > 0.5 * np.linalg.norm(n) * np.linalg.norm(o) for n in new for o in old)
 
     def relax(self, steps: int = 2) -> None:
-        """Move each vertex part of the way to its neighbours' centre: along the surface, projected onto its region,
-        for a vertex on no crease; along its chain for one inside a chain; a corner stays. A move that turns a
-        triangle over is taken back."""
+        """Move each vertex part of the way to its neighbours' centre (`cam.remesh.relax`): along the surface on its
+        region for a vertex on no crease, along its chain for one inside a chain; a corner stays. A move that
+        turns a face over is taken back."""
         edges, _ = edge_table(self.F)
-        n = len(self.V)
         region = self._vertex_region()
         smooth = np.flatnonzero(self.kind == SMOOTH)
         cn = self._chain_neighbours()
         inner = np.flatnonzero(self.kind == ON_CHAIN)
         for _ in range(steps):
-            centre = np.zeros((n, 3))
-            count = np.bincount(edges.ravel(), minlength=n).astype(float)
-            np.add.at(centre, edges[:, 0], self.V[edges[:, 1]])
-            np.add.at(centre, edges[:, 1], self.V[edges[:, 0]])
-            centre /= np.maximum(count, 1)[:, None]
-            old_V, old_arc = self.V.copy(), self.arc.copy()
-            normal_before = self._face_normals()
+            old = [(self.V, self.V.copy()), (self.arc, self.arc.copy())]
+            before = face_normals(self.V, self.F)
             if len(smooth):
-                _, normals = self.features.project(self.V[smooth], region[smooth])
-                step = _RELAX * (centre[smooth] - self.V[smooth])
-                step -= np.einsum("ij,ij->i", step, normals)[:, None] * normals
-                moved, turned = self.features.project(self.V[smooth] + step, region[smooth])
-                # a vertex stays where the surface under it would turn by over 45° (round a bend the edges are
-                # too long to follow, it would leave the bend uncovered)
-                keep = np.einsum("ij,ij->i", normals, turned) > np.cos(np.radians(45.0))
-                self.V[smooth[keep]] = moved[keep]
+                centres = neighbour_centres(self.V, edges)
+                self.V[smooth] = slide_on_surface(self.features, self.V[smooth], region[smooth], centres[smooth],
+                                                  _RELAX)
             if len(inner):
-                arcs = np.stack([self._arc_of(cn[inner, 0], inner), self._arc_of(cn[inner, 1], inner)], axis=1)
-                target = arcs.mean(axis=1)
-                self.arc[inner] = self.arc[inner] + _RELAX * (target - self.arc[inner])
+                target = 0.5 * (self._arc_of(cn[inner, 0], inner) + self._arc_of(cn[inner, 1], inner))
+                self.arc[inner] += _RELAX * (target - self.arc[inner])
                 for c in np.unique(self.chain[inner]).tolist():
                     rows = inner[self.chain[inner] == c]
                     self.V[rows] = self.features.chain_points(c, self.arc[rows])
-            self._undo_turned(normal_before, old_V, old_arc)
+            undo_turned(self.V, self.F, before, old)
 
     def _arc_of(self, vertices: np.ndarray, along: np.ndarray) -> np.ndarray:
         """Arc lengths of ``vertices`` on the chains of the vertices ``along`` (a chain's end: 0 or its length)."""
@@ -392,19 +386,3 @@ class EditableMesh:
         out[is_end & first] = 0.0
         out[is_end & ~first] = self.lengths[chains[is_end & ~first]]
         return out
-
-    def _face_normals(self) -> np.ndarray:
-        p = self.V[self.F]
-        if self.F.shape[1] == 4:
-            return np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
-        return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-
-    def _undo_turned(self, before: np.ndarray, old_V: np.ndarray, old_arc: np.ndarray) -> None:
-        for _ in range(20):
-            after = self._face_normals()
-            turned = np.einsum("ij,ij->i", before, after) <= 0.2 * np.linalg.norm(before, axis=1) * np.linalg.norm(
-                after, axis=1)
-            if not turned.any():
-                return
-            back = np.unique(self.F[turned])
-            self.V[back], self.arc[back] = old_V[back], old_arc[back]

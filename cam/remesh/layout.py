@@ -120,7 +120,7 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
         if key in creases:
             chain, arc_a, arc_b = creases[key]
             lengths[i] = abs(arc_b - arc_a)
-            fewest[i] = _pieces_for_chords(features.chains[chain], arc_a, arc_b, chord_mm)
+            fewest[i] = _pieces_for_chords(features.chains[chain], arc_a, arc_b, chord_mm, quad_mm)
     counts = quantize_edge_counts(edges, lengths, coarse.faces, edge_mm=quad_mm, min_counts=fewest)
     lap("quantize_s", 0.75, "filling the coarse quads")
     layout = subdivide_layout(coarse, features, edges, counts)
@@ -137,17 +137,34 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
     return layout, report
 
 
-def _pieces_for_chords(chain: Chain, arc_a: float, arc_b: float, chord_mm: float) -> int:
-    """Equal pieces of the chain between arc lengths ``arc_a`` and ``arc_b`` (mm) whose chords stay within
-    ``chord_mm`` of it where it curves steadily: a chord's sagitta falls with the square of the pieces. (Not
-    checked piece by piece: a denoised crease zigzags by about that much, and no count of pieces follows that.)"""
+def _pieces_for_chords(chain: Chain, arc_a: float, arc_b: float, chord_mm: float, quad_mm: float) -> int:
+    """The fewest equal pieces of the chain between arc lengths ``arc_a`` and ``arc_b`` (mm) whose chords stay
+    within ``chord_mm`` of it, but no more than half as many again as pieces a quad long."""
     lo, hi = sorted((arc_a, arc_b))
     inside = (chain.arc > lo) & (chain.arc < hi)
     if not inside.any():
         return 1
-    a, b = points_at(chain, np.array([lo, hi]))
-    p = chain.points[inside]
+    s = chain.arc[inside]
+    # measured on the chain averaged over a quarter of a quad, so that a zigzag of the mesh's edges is not a curve
+    reach = 0.25 * quad_mm
+    p = (points_at(chain, np.clip(s - reach, 0.0, chain.length)) + chain.points[inside]
+         + points_at(chain, np.clip(s + reach, 0.0, chain.length))) / 3.0
+    most = int(np.ceil(1.5 * (hi - lo) / quad_mm)) + 1
+    # a chord's sagitta falls with the square of the pieces over a steady curve (but only as the pieces over a
+    # kink): start there, then check
+    n = max(1, int(np.sqrt(_chord_deviation(chain, lo, hi, 1, p, s) / chord_mm)))
+    while n < most and _chord_deviation(chain, lo, hi, n, p, s) > chord_mm:
+        n += 1
+    return n
+
+
+def _chord_deviation(chain: Chain, lo: float, hi: float, n: int, p: np.ndarray, s: np.ndarray) -> float:
+    """The farthest the chain's points ``p`` (at arc lengths ``s``) lie from the chords of ``n`` equal pieces of
+    it between ``lo`` and ``hi``, mm."""
+    cuts = lo + (hi - lo) * np.arange(n + 1) / n
+    ends = points_at(chain, cuts)
+    k = np.clip(np.searchsorted(cuts, s) - 1, 0, n - 1)
+    a, b = ends[k], ends[k + 1]
     ab = b - a
-    t = np.clip((p - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
-    sagitta = float(np.linalg.norm(a + t[:, None] * ab - p, axis=1).max())
-    return max(1, int(np.ceil(np.sqrt(sagitta / chord_mm))))
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+    return float(np.linalg.norm(a + t[:, None] * ab - p, axis=1).max())

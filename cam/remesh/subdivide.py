@@ -15,6 +15,12 @@ import numpy as np
 
 from cam.remesh.coarse import CoarseMesh
 from cam.remesh.features import CreaseFeatures
+from cam.remesh.relax import (
+    face_normals,
+    neighbour_centres,
+    slide_on_surface,
+    undo_turned,
+)
 
 __all__ = ["QuadLayout", "subdivide_layout"]
 
@@ -159,37 +165,16 @@ def _grid(build: _Builder, bottom: np.ndarray, top: np.ndarray, left: np.ndarray
 
 def _smooth(vertices: np.ndarray, quads: np.ndarray, on_crease: np.ndarray, region: np.ndarray,
             features: CreaseFeatures) -> np.ndarray:
-    """Move the points on no crease towards their neighbours' centre along the surface; a move that turns a quad
-    over is taken back."""
+    """The points on no crease moved towards their neighbours' centre along the surface a few times
+    (`cam.remesh.relax`); a move that turns a quad over is taken back."""
     free = np.flatnonzero(~on_crease)
-    if not len(free):
-        return vertices
-    edges = np.unique(np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], axis=2).reshape(-1, 2), axis=1), axis=0)
-    n = len(vertices)
-    count = np.bincount(edges.ravel(), minlength=n).astype(float)
     v = vertices.copy()
-    before = _quad_normals(v, quads)
+    if not len(free):
+        return v
+    edges = np.unique(np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], axis=2).reshape(-1, 2), axis=1), axis=0)
+    before = face_normals(v, quads)
     for _ in range(_SMOOTH_ROUNDS):
-        centre = np.zeros((n, 3))
-        np.add.at(centre, edges[:, 0], v[edges[:, 1]])
-        np.add.at(centre, edges[:, 1], v[edges[:, 0]])
-        centre /= np.maximum(count, 1)[:, None]
-        _, normals = features.project(v[free], region[free])
-        step = _SMOOTH_STEP * (centre[free] - v[free])
-        step -= np.einsum("ij,ij->i", step, normals)[:, None] * normals
-        old = v.copy()
-        v[free] = features.project(v[free] + step, region[free])[0]
-        for _ in range(20):
-            after = _quad_normals(v, quads)
-            turned = np.einsum("ij,ij->i", before, after) <= 0.2 * np.linalg.norm(before, axis=1) * np.linalg.norm(
-                after, axis=1)
-            if not turned.any():
-                break
-            back = np.unique(quads[turned])
-            v[back] = old[back]
+        old = [(v, v.copy())]
+        v[free] = slide_on_surface(features, v[free], region[free], neighbour_centres(v, edges)[free], _SMOOTH_STEP)
+        undo_turned(v, quads, before, old)
     return v
-
-
-def _quad_normals(v: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    p = v[quads]
-    return np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])

@@ -111,3 +111,62 @@ def test_edge_counts_are_equal_across_every_quad_and_follow_the_mean_length():
 def test_edge_table_refuses_a_mesh_that_is_not_closed():
     with pytest.raises(ValueError, match="closed"):
         edge_table(np.array([[0, 1, 2]]))
+
+
+def test_the_stage_writes_the_crease_first_layout_and_says_so(tmp_path):
+    import json
+
+    from cam.io import write_ply_mesh
+    from cam.io.quads import read_quad_obj
+    from core.params import JobParams
+    from worker.context import StageContext
+    from worker.stages.remesh import run_remesh
+
+    vertices, triangles = csgparts.ridge40()
+    src = write_ply_mesh(tmp_path / "mesh.ply", vertices, triangles)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    seen = []
+    ctx = StageContext(job_id="j", stage="remesh", inputs={"mesh.ply": src}, out_dir=out_dir,
+                       params=JobParams.model_validate({"remesh": {"layout": "creases", "target_faces": 800}}),
+                       settings={}, progress=lambda f, m=None: seen.append(f))
+    out = run_remesh(ctx)
+    v, f = read_quad_obj(out["quads.obj"])
+    assert inspect_quad_mesh(v, f, expected_boundary_loops=0).problems == ()
+    report = json.loads(out["remesh.json"].read_text())
+    assert report["layout"] == "creases" and report["faces"] == len(f) and report["crease_recall"] == 1.0
+    assert "crease-first layout" in out["quads.obj"].read_text().splitlines()[0]
+    assert seen and max(seen) <= 1.0
+
+
+def test_cancel_reaches_the_crease_first_layout():
+    class Stop(Exception):
+        pass
+
+    def cancel():
+        raise Stop
+
+    vertices, triangles = csgparts.bracket()
+    with pytest.raises(Stop):
+        remesh_quads(vertices, triangles, RemeshParams(layout="creases"), check_cancel=cancel)
+
+
+def test_a_layout_that_fails_its_checks_is_made_finer_then_quadriflow_takes_over(monkeypatch):
+    pytest.importorskip("pyQuadriFlow")
+    from cam.remesh import layout, quadriflow
+
+    tried = []
+
+    def holed(vertices, triangles, **kwargs):
+        made, report = layout.crease_first_layout(vertices, triangles, **kwargs)
+        tried.append(kwargs["coarse_quads"])
+        # one quad missing: a hole the checks must find
+        return layout.QuadLayout(made.vertices, made.quads[1:], made.on_crease, made.vertex_region), report
+
+    monkeypatch.setattr(quadriflow, "crease_first_layout", holed)
+    vertices, triangles = csgparts.ridge40()
+    result = remesh_quads(vertices, triangles, RemeshParams(layout="creases", target_faces=400, timeout_s=120))
+    assert tried == [12.0, 6.0]
+    assert result.report["layout"] == "quadriflow"
+    reason = result.report["layout_fallback"]
+    assert "coarse edges of 12 quads" in reason and "coarse edges of 6 quads" in reason and "hole" in reason
