@@ -21,9 +21,9 @@ import numpy as np
 
 from cam import CheckCancel, GeometryError, Progress
 from cam.remesh.chains import Chain, points_at
-from cam.remesh.coarse import coarse_triangulation, edge_table
+from cam.remesh.coarse import CoarseMesh, coarse_triangulation, edge_table
 from cam.remesh.coarsequads import rotate_to_valence, split_into_quads
-from cam.remesh.features import find_crease_features
+from cam.remesh.features import CreaseFeatures, find_crease_features
 from cam.remesh.pairing import pair_triangles
 from cam.remesh.quantize import quantize_edge_counts
 from cam.remesh.subdivide import QuadLayout, subdivide_layout
@@ -41,8 +41,8 @@ _CHORD = 0.0015
 _COARSE_ERROR = 0.05
 
 
-def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_faces: int,
-                        crease_angle_deg: float = 50.0, coarse_quads: float = 4.0,
+def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_faces: int, coarse_quads: float,
+                        crease_angle_deg: float = 50.0,
                         progress: Progress | None = None, check_cancel: CheckCancel | None = None
                         ) -> tuple[QuadLayout, dict]:
     """A quad layout of a closed triangle mesh whose edges follow its creases.
@@ -111,17 +111,7 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
     rotations = rotate_to_valence(mesh)
     coarse = mesh.result()
     lap("coarse_quads_s", 0.7, "counting quads along the coarse edges")
-    edges, _ = edge_table(coarse.faces)
-    lengths = np.linalg.norm(coarse.vertices[edges[:, 0]] - coarse.vertices[edges[:, 1]], axis=1)
-    creases = coarse.crease_edges()
-    fewest = np.ones(len(edges), dtype=np.int64)
-    chord_mm = _CHORD * float(np.linalg.norm(np.ptp(tv, axis=0)))
-    for i, key in enumerate(map(tuple, edges.tolist())):
-        if key in creases:
-            chain, arc_a, arc_b = creases[key]
-            lengths[i] = abs(arc_b - arc_a)
-            fewest[i] = _pieces_for_chords(features.chains[chain], arc_a, arc_b, chord_mm, quad_mm)
-    counts = quantize_edge_counts(edges, lengths, coarse.faces, edge_mm=quad_mm, min_counts=fewest)
+    edges, counts = _edge_counts(coarse, features, quad_mm, _CHORD * float(np.linalg.norm(np.ptp(tv, axis=0))))
     lap("quantize_s", 0.75, "filling the coarse quads")
     layout = subdivide_layout(coarse, features, edges, counts)
     lap("subdivide_s", 1.0, "done")
@@ -135,6 +125,23 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
         **times,
     }
     return layout, report
+
+
+def _edge_counts(coarse: CoarseMesh, features: CreaseFeatures, quad_mm: float, chord_mm: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The coarse quads' edges (sorted vertex pairs, (e, 2)) and the quad edges each is cut into
+    (`quantize_edge_counts`): a crease edge is as long as its chain between its ends, and is cut into enough
+    pieces that their chords stay within ``chord_mm`` of the chain."""
+    edges, _ = edge_table(coarse.faces)
+    lengths = np.linalg.norm(coarse.vertices[edges[:, 0]] - coarse.vertices[edges[:, 1]], axis=1)
+    creases = coarse.crease_edges()
+    fewest = np.ones(len(edges), dtype=np.int64)
+    for i, key in enumerate(map(tuple, edges.tolist())):
+        if key in creases:
+            chain, arc_a, arc_b = creases[key]
+            lengths[i] = abs(arc_b - arc_a)
+            fewest[i] = _pieces_for_chords(features.chains[chain], arc_a, arc_b, chord_mm, quad_mm)
+    return edges, quantize_edge_counts(edges, lengths, coarse.faces, edge_mm=quad_mm, min_counts=fewest)
 
 
 def _pieces_for_chords(chain: Chain, arc_a: float, arc_b: float, chord_mm: float, quad_mm: float) -> int:

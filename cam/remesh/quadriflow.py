@@ -128,7 +128,8 @@ def remesh_quads(
 
         - ``layout``: ``"creases"`` makes the crease-first layout (:func:`cam.remesh.layout.crease_first_layout`,
           its coarse edges ``coarse_quads`` quads long), checked like a QuadriFlow run; where the mesh has
-          boundary loops, or the layout fails its checks, QuadriFlow makes the layout as below and the report's
+          boundary loops, or the layout fails its checks (also with coarse edges a half and a third as long),
+          QuadriFlow makes the layout as below and the report's
           ``layout_fallback`` says why. ``"quadriflow"``: QuadriFlow only. The report's ``layout`` says which.
         - ``target_faces``: quads to aim for.
         - ``seed``: seed of the first attempt; attempt ``i`` uses ``seed + i``. Once a run
@@ -222,10 +223,10 @@ def remesh_quads(
 def _crease_first(mesh: _Input, params: RemeshParams, *, progress: Progress | None,
                   check_cancel: CheckCancel | None, crease_angle_deg: float) -> RemeshResult:
     """The crease-first layout (`cam.remesh.layout`), checked like a QuadriFlow run, with its report; where it
-    fails its checks, once more with coarse edges half as long (finer coarse faces follow bends the longer
-    ones cut across); ValueError saying why each was not usable."""
+    fails its checks, again with coarse edges a half and then a third as long (finer coarse faces follow bends
+    the longer ones cut across); ValueError saying why each was not usable."""
     failures = []
-    for coarse_quads in (params.coarse_quads, 0.5 * params.coarse_quads):
+    for coarse_quads in (params.coarse_quads, params.coarse_quads / 2, params.coarse_quads / 3):
         try:
             result = _checked_layout(mesh, params, coarse_quads, progress=progress, check_cancel=check_cancel,
                                      crease_angle_deg=crease_angle_deg)
