@@ -13,13 +13,14 @@ on the machine hits both alike; the programs (`program*.nc`) of both are compare
 outcome is listed (the layout's crease recall, the surfaces over the fit's tolerance, verify's verdict and
 finished share), so that a change that alters the result shows what it did beside its time. The new
 code is this working tree, uncommitted changes included (the report says if it changed during the run).
---profile adds one run of the new code per part under py-spy and lists, per stage, where its samples went.
+--set KEY=VALUE (repeatable) is given to the new code's runs only: with --base HEAD it compares a parameter
+against the defaults on the same code. --profile adds one run of the new code per part under py-spy and lists, per stage, where its samples went.
 --scaling times Fandisk ×10 clouds of 50k, 200k and 1M points at h = 0.16 and 0.02 mm (new code, one run
 each). Targets (the issue): whole 50k job ≤ 120 s, fit ≤ 20 s, plan ≤ 30 s, verify ≤ 15 s, README example
 ≤ 30 s, peak RSS ≤ 2 GB at 1M points; on two cores.
 
-    python bench/e2e.py [part ...] [--runs N] [--base REV] [--profile] [--scaling [--scaling-points 200000,1000000]
-        [--scaling-h 0.16]] [--out-name NAME]
+    python bench/e2e.py [part ...] [--runs N] [--base REV] [--set KEY=VALUE ...] [--profile]
+        [--scaling [--scaling-points 200000,1000000] [--scaling-h 0.16]] [--out-name NAME]
         parts: fandisk-cloud, block-cloud, bracket, pockets, example (default: all, or none with --scaling);
         writes bench/results/NAME.md and NAME.json (NAME: e2e). Progress goes to stderr.
 """
@@ -367,17 +368,20 @@ def attribute_samples(raw: Path) -> dict:
 
 # --- the parts -------------------------------------------------------------------------------------------
 
-def run_part(part: str, codes: dict[str, dict], runs: int, work: Path, profile: bool) -> dict:
+def run_part(part: str, codes: dict[str, dict], runs: int, work: Path, profile: bool,
+             new_sets: tuple[str, ...] = ()) -> dict:
     got = prepare_input(part, work / "inputs")
     if isinstance(got, str):
         log(f"{part}: skipped, {got}")
         return {"skipped": got}
     args = cli_args(*got)
-    result: dict = {"input": str(got[0]), "sets": list(got[1]), "runs": {side: [] for side in codes}}
+    result: dict = {"input": str(got[0]), "sets": list(got[1]), "new_sets": list(new_sets),
+                    "runs": {side: [] for side in codes}}
     for i in range(runs):
         for side, code in codes.items():  # base before new, run after run
             out = work / part / f"{side}-{i + 1}"
-            result["runs"][side].append(timed_run(args, code, out, f"{part} {side} {i + 1}/{runs}"))
+            side_args = cli_args(got[0], (*got[1], *new_sets)) if side == "new" else args
+            result["runs"][side].append(timed_run(side_args, code, out, f"{part} {side} {i + 1}/{runs}"))
     result["summary"] = {side: summarise(r) for side, r in result["runs"].items()}
     if "base" in codes:
         result["programs"] = compare_programs(result["runs"]["base"], result["runs"]["new"])
@@ -535,6 +539,8 @@ def _part_section(part: str, result: dict) -> list[str]:
     if "skipped" in result:
         return [f"## {part}", "", f"Skipped: {result['skipped']}.", ""]
     sets = f", `--set {' --set '.join(result['sets'])}`" if result["sets"] else ", default parameters"
+    if result.get("new_sets"):
+        sets += f"; the new code's runs also `--set {' --set '.join(result['new_sets'])}`"
     text = [f"## {part}", "", f"Input: `{result['input']}`{sets}.", "", *part_table(part, result), ""]
     if "programs" in result:
         text += [f"Programs (`program*.nc`), base against new: **{result['programs']}**.", ""]
@@ -609,6 +615,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         help="first run the README example once per code, unmeasured: a fresh checkout compiles "
                              "its numba kernels on its first run")
     parser.add_argument("--out-name", default="e2e", help="bench/results/NAME.md and .json")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a parameter of the new code's runs only (with --base: the same code, say, against "
+                             "its defaults)")
     args = parser.parse_args(argv)
     unknown = [p for p in args.parts if p not in PARTS]
     if unknown:
@@ -673,7 +682,7 @@ def main(argv: list[str]) -> None:
         if args.warm:
             warm(codes, work, report)
         for part in args.parts:
-            report["parts"][part] = run_part(part, codes, args.runs, work, args.profile)
+            report["parts"][part] = run_part(part, codes, args.runs, work, args.profile, tuple(args.set))
             save(report, args.out_name)
         if args.scaling:
             report["scaling"] = run_scaling(codes["new"], work, args.scaling_points, args.scaling_h)

@@ -1,10 +1,12 @@
 """Benchmark the fit stage on the CAD test meshes: deviation per patch, C0 gap, control points, time.
 
     python bench/fit.py [--data ../shared/data] [--out bench/results] [--meshes fandisk_tgvresult,block_tgvresult]
+                        [--layouts quadriflow,creases]
 
 Each mesh is scaled ×10 to mm and taken through the pipeline's own stage code, as
 `cloud2cnc run` does (remesh → segment → fit, each a worker stage called with a
-StageContext; the MeshTGV authors' denoised meshes stand in for reconstruct + denoise).
+StageContext; the MeshTGV authors' denoised meshes stand in for reconstruct + denoise), once per quad layout
+(`remesh.layout`) named in --layouts.
 It needs the remesh and segment stages: without them it says so and exits 2,
 writing nothing. Writes ``fit.md`` (tables, the machine) and ``fit-<mesh>.png``
 (the surfaces coloured by their distance from the mesh) into the output folder.
@@ -141,6 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
     ap.add_argument("--meshes", default=",".join(MESHES))
+    ap.add_argument("--layouts", default="quadriflow,creases", help="remesh.layout values, each a run per mesh")
     args = ap.parse_args(argv)
     missing = missing_stages()
     if missing:
@@ -154,12 +157,17 @@ def main(argv: list[str] | None = None) -> int:
     header = describe_machine()
     results = []
     for name in args.meshes.split(","):
-        with tempfile.TemporaryDirectory() as tmp:
-            print(f"{name}: remesh, segment, fit ...", flush=True)
-            results.append(bench_mesh(name, data, Path(tmp)))
+        for layout in args.layouts.split(","):
+            params = job_params()
+            params.setdefault("remesh", {})["layout"] = layout
+            with tempfile.TemporaryDirectory() as tmp:
+                print(f"{name}, {layout} layout: remesh, segment, fit ...", flush=True)
+                result = bench_mesh(name, data, Path(tmp), params)
+                results.append({**result, "name": f"{name} ({layout})"})
     lines = ["# Fit benchmark", "",
              "`python bench/fit.py` — the CAD test meshes ×10 (mm) through the pipeline's remesh, segment and fit "
-             "stage code with default parameters (the MeshTGV authors' denoised meshes stand in for our "
+             "stage code with default parameters but `remesh.layout`, once with QuadriFlow's layout and once with "
+             "the crease-first one, as the mesh's name says (the MeshTGV authors' denoised meshes stand in for our "
              "reconstruct + denoise output). Deviation is measured both ways between each fitted surface and the "
              "denoised triangle mesh: mesh samples (vertices and face centroids) to the surfaces, and points of the "
              "surface to the mesh; `max` is the larger of the two.", "", f"Machine: {header}.", ""]
@@ -200,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         if r["doc"].get("skipped"):
             lines.append("")
             lines += [f"- skipped patch {x['patch']}: {x['reason']}" for x in r["doc"]["skipped"]]
-        png = f"fit-{r['name']}.png"
+        png = f"fit-{r['name'].replace(' (', '-').rstrip(')')}.png"
         render(out / png, r["doc"], distances, f"{r['name']}: surface to mesh (mm)", 2 * r["doc"]["tolerance_mm"])
         lines += ["", f"![{r['name']}]({png})"]
     md = out / "fit.md"

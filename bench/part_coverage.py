@@ -46,6 +46,8 @@ from machine_info import describe_machine  # bench/ is on the path when a script
 from oclfinish import ocl_program
 from partcheck import left_and_gouge, reachable, read_moves, sample_mesh
 
+from tests.csgparts import bracket, rounded_box, solid_mesh
+
 DATA = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "bench" / "results"
 R, H = 3.0, 0.16
@@ -54,45 +56,15 @@ HELD_OUT = {"block", "fandisk-cloud", "block-cloud", "bracket", "pockets"}
 SWEEP_FRACTIONS = (0.8, 0.64, 0.5, 0.4, 0.32)
 
 
-def _csg_mesh(solid) -> tuple[np.ndarray, np.ndarray]:
-    m = solid.to_mesh()
-    return np.asarray(m.vert_properties, dtype=np.float64)[:, :3], np.asarray(m.tri_verts, dtype=np.int64)
-
-
-def bracket() -> tuple[np.ndarray, np.ndarray]:
-    """An L-bracket, 60 × 40 mm: an 8 mm base, a 40 mm upright, a boss with a 10 mm through hole."""
-    from manifold3d import Manifold
-
-    base = Manifold.cube([60.0, 40.0, 8.0])
-    upright = Manifold.cube([8.0, 40.0, 40.0])
-    boss = Manifold.cylinder(14.0, 9.0, circular_segments=96).translate([38.0, 20.0, 0.0])
-    hole = Manifold.cylinder(30.0, 5.0, circular_segments=96).translate([38.0, 20.0, -5.0])
-    return _csg_mesh(base + upright + boss - hole)
-
-
-def _rounded_box(size, corner: float, floor: float, segments: int = 48):
-    """A box (x, y, z sizes) whose vertical edges are rounded by `corner` and whose bottom edges by `floor`."""
-    from manifold3d import Manifold
-
-    sx, sy, sz = size
-    parts = []
-    for x in (corner, sx - corner):
-        for y in (corner, sy - corner):
-            if floor > 0:
-                parts.append(Manifold.sphere(floor, segments).translate([x, y, floor]))
-            parts.append(Manifold.cylinder(sz - floor, corner, circular_segments=segments).translate([x, y, floor]))
-    return Manifold.batch_hull(parts)
-
-
 def pockets() -> tuple[np.ndarray, np.ndarray]:
     """A 60 × 40 × 20 block with a 24 × 16 × 10 pocket (corners and floor filleted 1.5 mm) and a
     12 × 12 × 6 pocket (corners 1 mm, sharp floor): every fillet smaller than the 3 mm ball."""
     from manifold3d import Manifold
 
     block = Manifold.cube([60.0, 40.0, 20.0])
-    p1 = _rounded_box((24.0, 16.0, 12.0), 1.5, 1.5).translate([6.0, 12.0, 10.0])
-    p2 = _rounded_box((12.0, 12.0, 8.0), 1.0, 0.0).translate([40.0, 14.0, 14.0])
-    return _csg_mesh(block - p1 - p2)
+    p1 = rounded_box((24.0, 16.0, 12.0), 1.5, 1.5).translate([6.0, 12.0, 10.0])
+    p2 = rounded_box((12.0, 12.0, 8.0), 1.0, 0.0).translate([40.0, 14.0, 14.0])
+    return solid_mesh(block - p1 - p2)
 
 
 def ground_truth(part: str) -> tuple[np.ndarray, np.ndarray] | None:

@@ -420,11 +420,11 @@ def part_bracket_two_bosses():
 def part_pockets_fillet():
     """A 60 x 40 x 20 block with a 24 x 16 x 10 pocket filleted 3 mm and a 12 x 12 x 6 one with 1 mm corners."""
     from manifold3d import Manifold
-    from part_coverage import _rounded_box  # bench/ is on the path when a script runs
+    from tests.csgparts import rounded_box
 
     block = Manifold.cube([60.0, 40.0, 20.0])
-    p1 = _rounded_box((24.0, 16.0, 12.0), 3.0, 3.0).translate([6.0, 12.0, 10.0])
-    p2 = _rounded_box((12.0, 12.0, 8.0), 1.0, 0.0).translate([40.0, 14.0, 14.0])
+    p1 = rounded_box((24.0, 16.0, 12.0), 3.0, 3.0).translate([6.0, 12.0, 10.0])
+    p2 = rounded_box((12.0, 12.0, 8.0), 1.0, 0.0).translate([40.0, 14.0, 14.0])
     return _solid(block - p1 - p2)
 
 

@@ -4,8 +4,9 @@ they cut the surface into.
 A crease-first layout (:mod:`cam.remesh.layout`) makes every crease a chain of quad edges, so it needs the creases
 as paths of mesh vertices, not as loose edges: :func:`find_crease_features` takes the crease chains of
 :func:`cam.remesh.chains.crease_chains` (sharp creases, gentle ones that run on for two quads, cut where they turn
-sharply), drops short spurs (a crease under a quad long that ends in the middle of a face: a bevel's or a scan's
-stub, which no quad edge needs to follow), and labels each vertex: on no crease, inside one chain (it may slide
+sharply), merges regions narrower than half a quad by dropping their least sharp chain (a denoised crease often
+shows as two parallel lines of gentler edges joined by rungs), drops short spurs (a crease under a quad long that
+ends in the middle of a face: a bevel's or a scan's stub, which no quad edge needs to follow), and labels each vertex: on no crease, inside one chain (it may slide
 along that chain only), or at a chain's end (a corner: it never moves). The chains cut the triangles into regions;
 a point made inside a region is projected onto that region's triangles only, so that a point on one side of a
 thin wall or a sharp edge never lands on the other.
@@ -111,7 +112,8 @@ class CreaseFeatures:
 
 def find_crease_features(vertices: np.ndarray, triangles: np.ndarray, *, crease_angle_deg: float,
                          gentle_angle_deg: float, corner_turn_deg: float, quad_mm: float) -> CreaseFeatures:
-    """The crease chains of a closed triangle mesh, cleaned of spurs, and the regions they cut it into.
+    """The crease chains of a closed triangle mesh, cleaned of thin regions and spurs, and the regions they cut it
+    into.
 
     Parameters
     ----------
