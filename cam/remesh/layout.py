@@ -146,20 +146,27 @@ def _edge_counts(coarse: CoarseMesh, features: CreaseFeatures, quad_mm: float, c
 
 def _pieces_for_chords(chain: Chain, arc_a: float, arc_b: float, chord_mm: float, quad_mm: float) -> int:
     """The fewest equal pieces of the chain between arc lengths ``arc_a`` and ``arc_b`` (mm) whose chords stay
-    within ``chord_mm`` of it, but no more than half as many again as pieces a quad long."""
+    within ``chord_mm`` of it, but no more than half as many again as pieces a quad long (rounded: an edge under
+    two thirds of a quad long is one piece).
+
+    A chain rougher than half of ``chord_mm`` (its points that far from their mean with the points a quarter quad
+    before and after: a reconstructed crease zigzags along the mesh's edges) is a curve only at a coarser scale,
+    and no count of pieces follows its zigzag: there the sagitta over the whole edge sets the count, as over a
+    steady curve (it falls with the square of the pieces).
+    """
     lo, hi = sorted((arc_a, arc_b))
     inside = (chain.arc > lo) & (chain.arc < hi)
     if not inside.any():
         return 1
-    s = chain.arc[inside]
-    # measured on the chain averaged over a quarter of a quad, so that a zigzag of the mesh's edges is not a curve
+    p, s = chain.points[inside], chain.arc[inside]
     reach = 0.25 * quad_mm
-    p = (points_at(chain, np.clip(s - reach, 0.0, chain.length)) + chain.points[inside]
-         + points_at(chain, np.clip(s + reach, 0.0, chain.length))) / 3.0
-    most = int(np.ceil(1.5 * (hi - lo) / quad_mm)) + 1
-    # a chord's sagitta falls with the square of the pieces over a steady curve (but only as the pieces over a
-    # kink): start there, then check
-    n = max(1, int(np.sqrt(_chord_deviation(chain, lo, hi, 1, p, s) / chord_mm)))
+    mean = (points_at(chain, np.clip(s - reach, 0.0, chain.length)) + p
+            + points_at(chain, np.clip(s + reach, 0.0, chain.length))) / 3.0
+    most = max(1, int(np.rint(1.5 * (hi - lo) / quad_mm)))
+    n = min(most, max(1, int(np.ceil(np.sqrt(_chord_deviation(chain, lo, hi, 1, p, s) / chord_mm)))))
+    if np.linalg.norm(p - mean, axis=1).max() > 0.5 * chord_mm:
+        return n
+    # over a kink (a rounded corner inside the edge) the sagitta falls only with the pieces: checked one by one
     while n < most and _chord_deviation(chain, lo, hi, n, p, s) > chord_mm:
         n += 1
     return n
