@@ -172,24 +172,34 @@ def warm_kernels(settings: Settings, *, force: bool = False) -> WarmupReport:
                                 stream=stream)
     statuses = {r.name: r.status if r.error is None or r.status == "skipped" else f"{r.status}: {r.error}"
                 for r in reports}
-    if "plan" in stages:
-        _call_data_dependent()
+    _call_data_dependent(stages)
     if len(statuses) == len(stages) and all(status in ("succeeded", "skipped") for status in statuses.values()):
         stamp.parent.mkdir(parents=True, exist_ok=True)
         stamp.write_text(f"{','.join(stages)}\n")
     return WarmupReport(None, time.perf_counter() - t0, statuses, stamp)
 
 
-def _call_data_dependent() -> None:
-    """Kernels a job calls only on some parts: the planner's foot search inside one piece of a surface with C0
-    lines (`cam.plan.gouge`), called here on a flat bicubic patch."""
-    from cam.spline._compiled import project_in_boxes
+def _call_data_dependent(stages: list[str]) -> None:
+    """Kernels a job calls only on some parts or with some parameters: the planner's foot search inside one piece
+    of a surface with C0 lines (`cam.plan.gouge`), called here on a flat bicubic patch; the crease-first layout's
+    collapses (`remesh.layout = "creases"`, `cam.remesh.coarse`), on an octahedron."""
+    if "plan" in stages:
+        from cam.spline._compiled import project_in_boxes
 
-    knots = np.array([0.0, 0, 0, 0, 1, 1, 1, 1])
-    grid = np.linspace(0.0, 1.0, 4)
-    net = np.stack([*np.meshgrid(grid, grid, indexing="ij"), np.zeros((4, 4))], axis=-1)
-    project_in_boxes(knots, knots, net, np.array([[0.5, 0.5, 1.0]]), np.array([[0.4, 0.4]]),
-                     np.zeros((1, 2)), np.ones((1, 2)), (3, 3), 12)
+        knots = np.array([0.0, 0, 0, 0, 1, 1, 1, 1])
+        grid = np.linspace(0.0, 1.0, 4)
+        net = np.stack([*np.meshgrid(grid, grid, indexing="ij"), np.zeros((4, 4))], axis=-1)
+        project_in_boxes(knots, knots, net, np.array([[0.5, 0.5, 1.0]]), np.array([[0.4, 0.4]]),
+                         np.zeros((1, 2)), np.ones((1, 2)), (3, 3), 12)
+    if "remesh" in stages:
+        from cam.remesh._collapsekernel import collapse_short_edges, plane_quadrics
+
+        vertices = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [0, 0, 1.0], [0, 0, -1.0]])
+        faces = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+        quadric, weight = plane_quadrics(vertices, faces)
+        collapse_short_edges(vertices, faces, np.ones(8, dtype=bool), np.zeros(6, dtype=np.int8),
+                             np.full((6, 2), -1, dtype=np.int64), quadric, weight, np.ones(6), 0.8, 4.0 / 3.0, 0.05,
+                             35.0, 8)
 
 
 def run_warm_up(*, timeout_s: float = _TIMEOUT_S, stream: TextIO = sys.stderr) -> int:
