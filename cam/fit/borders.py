@@ -31,7 +31,7 @@ from cam.spline.knots import (
     sub_curve,
 )
 
-__all__ = ["find_kinks", "fit_boundary_curves", "seed_bordered_net"]
+__all__ = ["find_kinks", "fit_boundary_curves", "junction_vertices", "seed_bordered_net"]
 
 
 def fit_boundary_curves(layout: Layout, shape: list[tuple[int, int]], free: list[SurfaceFit], positions: np.ndarray,
@@ -86,7 +86,7 @@ def fit_boundary_curves(layout: Layout, shape: list[tuple[int, int]], free: list
     errors : list of float
         Each curve's largest deviation found, mm.
     """
-    ends = {spec.vertices[0] for spec in layout.curves} | {spec.vertices[-1] for spec in layout.curves}
+    ends = junction_vertices(layout)
     samples = _border_samples(layout, shape, free)
 
     def fit_one(c: int, _cancel: CheckCancel) -> CurveFit:
@@ -98,6 +98,19 @@ def fit_boundary_curves(layout: Layout, shape: list[tuple[int, int]], free: list
     # Each curve is fitted on its own data: in `processes` forked processes, the same curves as one after another.
     fits = map_forked(fit_one, len(layout.curves), processes=processes, check_cancel=check_cancel)
     return fits, [f.max_error for f in fits]
+
+
+def junction_vertices(layout: Layout) -> set[int]:
+    """The vertices where a piece of a side begins or ends: every patch corner and every point where a side's
+    neighbour changes. A curve passes through each exactly, so that two curves meeting there (a patch's two
+    sides at its corner, each perhaps a piece of a longer curve) meet at one point and the patch's corner is
+    both (a curve's own ends alone leave out a corner inside two other patches' sides)."""
+    out: set[int] = set()
+    for pieces in layout.sides.values():
+        for pc in pieces:
+            spec = layout.curves[pc.curve]
+            out.update(int(spec.vertices[h - spec.start]) for h in pc.host)
+    return out
 
 
 def _border_samples(layout: Layout, shape, free: list[SurfaceFit]) -> list[list[tuple[np.ndarray, np.ndarray]]]:
@@ -138,8 +151,8 @@ def _fit_curve_piece(lo: int, verts: np.ndarray, seg: np.ndarray, ends: set[int]
                      h_free: np.ndarray, index, creases, sharp, *, knot_spacing_quads: float, tolerance_mm: float,
                      max_refinements: int, min_span_quads: float) -> CurveFit:
     """The piece of a curve through vertices `verts` (m,) at `seg` (m, 3) mm, parameters lo..lo + m - 1:
-    exact at its ends and at the junctions on it, on the crease along sharp edges, else on the free
-    fits' borders (q_free (s, 3) mm at curve parameters h_free (s,))."""
+    exact at its ends and at the junctions on it (each a knot), on the crease along sharp edges, else on the
+    free fits' borders (q_free (s, 3) mm at curve parameters h_free (s,))."""
     hi = lo + len(verts) - 1
     fixed = [i for i in range(len(verts)) if i in (0, len(verts) - 1) or int(verts[i]) in ends]
     cons = [(float(lo + i), seg[i]) for i in fixed]
@@ -158,7 +171,11 @@ def _fit_curve_piece(lo: int, verts: np.ndarray, seg: np.ndarray, ends: set[int]
         return closest_points(index, _polyline_at(seg, np.interp(t, tau, np.arange(len(seg)))))[0]
 
     slide = _slide_ranges(on, tau, h, exact)
-    return fit_curve(q, h, knots=lattice_knots(lo, hi, knot_spacing_quads), constraints=cons,
+    # a knot at each junction inside the piece: the curve has the freedom to pass through all of them exactly
+    # (a side cut at every quad by its neighbours has a junction at every vertex, more than the lattice's knots
+    # can take), and the patches that meet there start or end at a knot
+    knots = merge_knots(lattice_knots(lo, hi, knot_spacing_quads), [lo + i for i in fixed[1:-1]])
+    return fit_curve(q, h, knots=knots, constraints=cons,
                      length_mm=length, tolerance_mm=0.5 * tolerance_mm,
                      max_refinements=max_refinements, min_span=min_span_quads,
                      closest=lambda p: _feet_and_normals(index, p), project=on_mesh,

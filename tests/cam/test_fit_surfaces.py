@@ -108,6 +108,18 @@ def test_a_t_junction_is_c0_on_both_pieces():
         assert np.abs(poly(S[..., 0], S[..., 1])[..., 2] - S[..., 2]).max() < 1e-5
 
 
+def test_a_side_cut_at_every_quad_meets_each_neighbour_exactly():
+    # A over twelve patches one quad wide: A's side has a junction at each of its 13 vertices, more than a curve
+    # with a knot every two quads can pass through (the crease-first layout's strips make such sides)
+    V, ids, MV, MF = case(cylinder(9.0), (12, 6), (12, 6), refine=3)
+    grids = [ids[:, 3:]] + [ids[i:i + 2, :4] for i in range(12)]
+    result = fit_patches(V, grids, MV, MF, fit_params())
+    assert result.max_gap_mm <= 1e-9
+    for i in range(12):
+        t = np.linspace(0, 1, 41)
+        assert _border_gap(result, grids, 0, "v0", 1 + i, "v1", t + i, t) <= 1e-9
+
+
 def _bent(s, t):
     """A paraboloid parameterised with a bend: seen from above its t = const lines turn at s = 4
     (t = 0 by 63 degrees, t = 3, a shared border in the test, by 45 degrees, t = 6 not at all)."""

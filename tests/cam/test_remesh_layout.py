@@ -170,3 +170,31 @@ def test_a_layout_that_fails_its_checks_is_made_finer_twice_then_quadriflow_take
     assert result.report["layout"] == "quadriflow"
     reason = result.report["layout_fallback"]
     assert all(f"coarse edges of {k} quads" in reason for k in (12, 6, 4)) and "hole" in reason
+
+
+def test_the_fit_of_the_clean_fandisk_s_crease_first_layout_is_c0_everywhere(tmp_path):
+    # Patch corners at junctions inside other patches' sides: every curve through one must pass through it (the
+    # fit's surfaces parted there by 0.78 mm before every junction was a fixed point and a knot of its curves)
+    import json
+
+    from cam.io import read_obj, write_ply_mesh
+    from core.params import JobParams
+    from tests.conftest import SHARED_DATA
+    from worker.context import StageContext
+    from worker.stages.fit import run_fit
+    from worker.stages.remesh import run_remesh
+    from worker.stages.segment import run_segment
+
+    path = SHARED_DATA / "fandisk_gt.obj"
+    if not path.exists():
+        pytest.skip(f"{path} is absent (the shared test meshes are not part of the project)")
+    mesh = read_obj(path)
+    params = JobParams.model_validate({"remesh": {"layout": "creases"}, "fit": {"max_refinements": 0}})
+    inputs = {"mesh.ply": write_ply_mesh(tmp_path / "mesh.ply", mesh.points * 10.0, mesh.faces)}
+    for name, run in (("remesh", run_remesh), ("segment", run_segment), ("fit", run_fit)):
+        out = tmp_path / name
+        out.mkdir()
+        inputs.update(run(StageContext(job_id="j", stage=name, inputs=dict(inputs), out_dir=out, params=params,
+                                       settings={})))
+    assert json.loads(inputs["remesh.json"].read_text())["layout"] == "creases"
+    assert json.loads(inputs["surfaces.json"].read_text())["max_c0_gap_mm"] <= 1e-9
