@@ -66,8 +66,9 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
     -------
     layout : QuadLayout
     report : dict
-        JSON-ready: counts of each step (chains, spurs dropped, regions, coarse vertices and triangles, quads
-        and triangles left unpaired), the quad size and the seconds of each step.
+        JSON-ready: the quad size and the coarse edges' (mm, and in quads), counts of each step (chains, spurs
+        and thin-region chains dropped, regions, coarse vertices, triangles, pairs, triangles left unpaired,
+        coarse quads, rotations) and the seconds of each step.
 
     Raises
     ------
@@ -121,7 +122,7 @@ def crease_first_layout(vertices: np.ndarray, triangles: np.ndarray, *, target_f
         "thin_dropped": features.thin_dropped, "thin_length_mm": features.thin_length_mm,
         "regions": int(features.face_region.max()) + 1, "coarse_vertices": coarse_vertices,
         "coarse_triangles": coarse_triangles, "coarse_pairs": len(quads), "coarse_unpaired": int(unpaired.sum()),
-        "coarse_quads": len(coarse.faces), "coarse_rotations": rotations,
+        "coarse_edge_quads": coarse_quads, "coarse_quad_count": len(coarse.faces), "coarse_rotations": rotations,
         **times,
     }
     return layout, report

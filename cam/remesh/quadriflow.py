@@ -240,6 +240,8 @@ def _crease_first(mesh: _Input, params: RemeshParams, *, progress: Progress | No
 
 def _checked_layout(mesh: _Input, params: RemeshParams, coarse_quads: float, *, progress: Progress | None,
                     check_cancel: CheckCancel | None, crease_angle_deg: float) -> RemeshResult:
+    """One crease-first layout with coarse edges ``coarse_quads`` quads long and its report; ValueError naming what
+    its checks found (a defect, or too far from the input)."""
     started = time.monotonic()
     layout, facts = crease_first_layout(mesh.vertices, mesh.triangles, target_faces=params.target_faces,
                                         crease_angle_deg=crease_angle_deg, coarse_quads=coarse_quads,

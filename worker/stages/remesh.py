@@ -45,5 +45,5 @@ def run_remesh(ctx: StageContext) -> dict[str, Path]:
 
 def _made_by(report: dict) -> str:
     if report["layout"] == "creases":
-        return f"crease-first layout, {report['coarse_quads']} coarse quads"
+        return f"crease-first layout, coarse edges of {report['coarse_edge_quads']:g} quads"
     return f"QuadriFlow seed {report['seed']}"
