@@ -189,8 +189,7 @@ def _merge_thin_regions(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], wid
     if not chains:
         return chains, []
     region = _regions(tf, chains)
-    p = tv[tf]
-    area = np.bincount(region, weights=0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1))
+    area = _region_areas(tv, tf, region)
     sides, angle = _chain_sides(tv, tf, chains, region)
     length = np.array([c.length for c in chains])
     parent = np.arange(len(area))
@@ -222,8 +221,7 @@ def _merge_thin_regions(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], wid
 
 def _region_widths(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], region: np.ndarray) -> np.ndarray:
     """Twice each region's area over its perimeter of chains (those with another region on their other side), mm."""
-    p = tv[tf]
-    area = np.bincount(region, weights=0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1))
+    area = _region_areas(tv, tf, region)
     perimeter = np.zeros(len(area))
     if chains:
         sides, _ = _chain_sides(tv, tf, chains, region)
@@ -232,6 +230,12 @@ def _region_widths(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], region: 
         np.add.at(perimeter, sides[border, 0], length[border])
         np.add.at(perimeter, sides[border, 1], length[border])
     return np.where(perimeter > 0, 2.0 * area / np.maximum(perimeter, 1e-300), np.inf)
+
+
+def _region_areas(tv: np.ndarray, tf: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """Each region's area, mm² ((r,))."""
+    p = tv[tf]
+    return np.bincount(region, weights=0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1))
 
 
 def _chain_sides(tv: np.ndarray, tf: np.ndarray, chains: list[Chain], region: np.ndarray
