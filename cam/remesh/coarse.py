@@ -261,28 +261,38 @@ class EditableMesh:
                     chosen.append(e)
             self._split(edges[chosen], faces[chosen])
 
-    def _split(self, edges: np.ndarray, faces: np.ndarray) -> None:
+    def edge_middles(self, edges: np.ndarray, regions: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The middle of each edge (sorted vertex pairs (k, 2)) on the part: at the middle arc length of its chain
+        for an edge on one, else the chord's middle projected onto the edge's region (``regions`` (k,)).
+
+        Returns the points (k, 3) mm, their kinds (SMOOTH or ON_CHAIN), chains (-1 off one), arc lengths (mm) and
+        the surface's unit normals at the projected ones (zero at the others)."""
         creases = self.result().crease_edges()
         k = len(edges)
         points = 0.5 * (self.V[edges[:, 0]] + self.V[edges[:, 1]])
         kind = np.full(k, SMOOTH, dtype=np.int8)
         chain = np.full(k, -1, dtype=np.int64)
         arc = np.zeros(k)
-        on_chain = []
-        for i, (a, b) in enumerate(edges.tolist()):
-            hit = creases.get((a, b))
+        normals = np.zeros((k, 3))
+        for i, key in enumerate(map(tuple, edges.tolist())):
+            hit = creases.get(key)
             if hit is not None:
                 kind[i], chain[i], arc[i] = ON_CHAIN, hit[0], 0.5 * (hit[1] + hit[2])
-                on_chain.append(i)
+                points[i] = self.features.chain_points(hit[0], arc[i:i + 1])[0]
         smooth = np.flatnonzero(kind == SMOOTH)
+        if len(smooth):
+            points[smooth], normals[smooth] = self.features.project(points[smooth], regions[smooth])
+        return points, kind, chain, arc, normals
+
+    def _split(self, edges: np.ndarray, faces: np.ndarray) -> None:
+        points, kind, chain, arc, normals = self.edge_middles(edges, self.region[faces[:, 0]])
         quadric = 0.5 * (self.Q[edges[:, 0]] + self.Q[edges[:, 1]])
         weight = 0.5 * (self.W[edges[:, 0]] + self.W[edges[:, 1]])
-        if len(smooth):
-            points[smooth], normals = self.features.project(points[smooth], self.region[faces[smooth, 0]])
-            # the surface's own plane there: an end's quadric may hold the far side of a crease it lies on
-            quadric[smooth] = weight[smooth, None] * point_plane_quadrics(points[smooth], normals)
-        for i in on_chain:
-            points[i] = self.features.chain_points(int(chain[i]), arc[i:i + 1])[0]
+        # a middle off the creases takes the surface's own plane there: an end's quadric may hold the far side
+        # of a crease it lies on
+        smooth = kind == SMOOTH
+        quadric[smooth] = weight[smooth, None] * point_plane_quadrics(points[smooth], normals[smooth])
         # f1 runs a -> b with third corner c; f2 runs b -> a with third corner d.
         f1, f2 = faces[:, 0], faces[:, 1]
         a, b = edges[:, 0], edges[:, 1]

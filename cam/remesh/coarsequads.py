@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from cam.remesh.coarse import EditableMesh, edge_table
-from cam.remesh.features import CORNER, ON_CHAIN, SMOOTH
+from cam.remesh.features import CORNER, SMOOTH
 from cam.remesh.pairing import quad_scores
 
 __all__ = ["rotate_to_valence", "split_into_quads"]
@@ -26,7 +26,6 @@ def split_into_quads(mesh: EditableMesh, quads: np.ndarray, quad_region: np.ndar
                      triangle_region: np.ndarray) -> None:
     """Replace the mesh's faces by the quads (q, 4) and triangles (t, 3) given, each split about its centre
     (in place: ``mesh.F`` becomes (4q + 3t, 4))."""
-    creases = mesh.result().crease_edges()
     faces = [f for f in quads.tolist()] + [f for f in triangles.tolist()]
     region = np.concatenate([quad_region, triangle_region]).astype(np.int64)
     sides = {}
@@ -35,19 +34,7 @@ def split_into_quads(mesh: EditableMesh, quads: np.ndarray, quad_region: np.ndar
             a, b = face[j], face[(j + 1) % len(face)]
             sides.setdefault((min(a, b), max(a, b)), r)
     keys = np.array(list(sides), dtype=np.int64).reshape(-1, 2)
-    side_region = np.array(list(sides.values()), dtype=np.int64)
-    points = 0.5 * (mesh.V[keys[:, 0]] + mesh.V[keys[:, 1]])
-    kind = np.full(len(keys), SMOOTH, dtype=np.int8)
-    chain = np.full(len(keys), -1, dtype=np.int64)
-    arc = np.zeros(len(keys))
-    for i, key in enumerate(map(tuple, keys.tolist())):
-        hit = creases.get(key)
-        if hit is not None:
-            kind[i], chain[i], arc[i] = ON_CHAIN, hit[0], 0.5 * (hit[1] + hit[2])
-            points[i] = mesh.features.chain_points(hit[0], arc[i:i + 1])[0]
-    smooth = np.flatnonzero(kind == SMOOTH)
-    if len(smooth):
-        points[smooth] = mesh.features.project(points[smooth], side_region[smooth])[0]
+    points, kind, chain, arc, _ = mesh.edge_middles(keys, np.array(list(sides.values()), dtype=np.int64))
     middle_ids = mesh.add_vertices(points, kind, chain, arc, np.zeros((len(keys), 10)), np.zeros(len(keys)))
     middle = {key: int(i) for key, i in zip(map(tuple, keys.tolist()), middle_ids.tolist(), strict=True)}
     centres = np.array([mesh.V[f].mean(axis=0) for f in faces]).reshape(-1, 3)

@@ -75,7 +75,7 @@ class _Input(NamedTuple):
     triangles: np.ndarray  # int64 (m, 3)
     boundary_loops: int
     diagonal_mm: float
-    index: MeshIndex | None = None  # its closest-point index, built once when the layouts are snapped
+    index: MeshIndex | None = None  # its closest-point index, built once when layouts are snapped or made crease-first
 
 
 def boundary_loop_count(triangles: np.ndarray, n_vertices: int) -> int:
@@ -226,6 +226,8 @@ def _crease_first(mesh: _Input, params: RemeshParams, *, progress: Progress | No
     fails its checks, again with coarse edges a half and then a third as long (finer coarse faces follow bends
     the longer ones cut across); ValueError saying why each was not usable."""
     failures = []
+    if mesh.index is None:  # built once for every try
+        mesh = mesh._replace(index=mesh_index(mesh.vertices, mesh.triangles))
     for coarse_quads in (params.coarse_quads, params.coarse_quads / 2, params.coarse_quads / 3):
         try:
             result = _checked_layout(mesh, params, coarse_quads, progress=progress, check_cancel=check_cancel,
@@ -251,8 +253,7 @@ def _checked_layout(mesh: _Input, params: RemeshParams, coarse_quads: float, *, 
         raise ValueError("; ".join(check.problems))
     if progress is not None:
         progress(0.9, "measuring the layout")
-    index = mesh_index(mesh.vertices, mesh.triangles)
-    hausdorff, mean = hausdorff_to_mesh(layout.vertices, layout.quads, index)
+    hausdorff, mean = hausdorff_to_mesh(layout.vertices, layout.quads, mesh.index)
     if hausdorff > params.max_hausdorff_ratio * mesh.diagonal_mm:
         raise ValueError(f"it lies {hausdorff:.3g} mm from the input at worst ({hausdorff / mesh.diagonal_mm:.1%} "
                          f"of the diagonal, limit {params.max_hausdorff_ratio:.1%})")
