@@ -22,7 +22,7 @@ wall time. Writes bench/results/reconstruct.md and reconstruct.png.
 Corpus mode (issue 36, a bench corpus that is not the tuning set):
 
     python bench/reconstruct.py --corpus [--parts abc3,...] [--conditions no-normals-n0.25,...] \
-        [--points 50000] [--threads 1] [--poisson-threads 1] [--cache DIR] [--report-only]
+        [--points 50000] [--threads 1] [--poisson-threads 1] [--cache DIR] [--report-only] [--rerun]
 
 22 parts: Fandisk and Block (x10, mm), the seven ABC parts of ../shared/data/abc/ (each scaled to a 60 mm
 bounding-box diagonal; abc1 is not watertight and is sampled anyway, marked so), the three CSG parts above and
@@ -261,6 +261,8 @@ def main(argv=None):
                         help="--corpus: meshes kept for the pictures of the worst rows")
     parser.add_argument("--report-only", action="store_true",
                         help="--corpus: write the tables and pictures from the rows done, run nothing")
+    parser.add_argument("--rerun", action="store_true",
+                        help="--corpus: run the rows asked for again even where reconstruct.json has them")
     parser.add_argument("--max-minutes", type=float, default=None,
                         help="--corpus: start no new row after this many minutes (the table is written)")
     args = parser.parse_args(argv)
@@ -743,7 +745,7 @@ def corpus_main(args) -> None:
     loaded: dict = {}
     for part, cond in ([] if args.report_only else _order(parts, conds)):
         key = f"{part}|{cond}|{args.points}"
-        if key in rows or part in absent:
+        if (key in rows and not args.rerun) or part in absent:
             continue
         if args.max_minutes is not None and time.perf_counter() - started > 60.0 * args.max_minutes:
             print(f"--max-minutes {args.max_minutes:g} reached: no new rows started", flush=True)

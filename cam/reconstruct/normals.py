@@ -1,61 +1,40 @@
-"""Normals for a point cloud: PCA over the k nearest neighbours, oriented by a minimum spanning tree.
+"""Normals for a point cloud: PCA over the k nearest neighbours, read on each point's own sheet.
 
-Orientation follows Hoppe et al. (1992): a tree over the k-NN graph whose edge
-weights are small where neighbouring tangent planes agree, walked from a seed
-(the point farthest from its component's centroid). Each step copies the
-parent's side. The walk is linear in the number of points
-whatever the shape, so a perfectly planar sample (where all weights tie) costs
-no more than a curved one. Which side is out is then settled for the whole
-component by the divergence theorem: over a closed surface the outward normals'
-flux of (p - centroid) is three times the enclosed volume, so positive (the
-seed's own normal is no guide where the seed is a corner).
+A plane fit over a point's neighbours gives the normal's line; which way out it points is settled by
+:mod:`cam.reconstruct.orient`. Across a thin wall or a narrow gap (the two faces of a 2 mm web, a boss 2 mm
+above a floor) the neighbourhoods of a noisy cloud reach the opposite face, whose tangent plane is parallel.
+Such neighbours are told apart by their offset from the point's tangent plane, against the gap a sheet of
+this noise can show (:data:`SHEET_GAP_NOISE` times the fit's residual, at least the point spacing), and each
+normal is refitted on the neighbours of its own face, so a thin wall's normals and noise estimate are as
+good as a thick part's (mean error 14.5 -> 11.9 degrees on 2 mm walls). The same gap keeps the orientation's
+tree from crossing a wall.
 
-Copying the parent's side is only right between two samples of the same sheet
-of the surface. Across a thin wall or a narrow gap (the two faces of a 2 mm
-web, a boss 2 mm above a floor) the neighbourhoods of a noisy cloud reach the
-opposite face, whose tangent plane is parallel but whose outward side is the
-other one: Hoppe's weight calls such a pair a perfect match, and a tree that
-takes it flips the whole face behind it (half of a 2 mm-walled bracket at
-0.25 % noise came out inside out). So an edge also pays for how far its two
-points lie from each other's tangent plane, measured against the gap a sheet
-of this noise can show (:data:`SHEET_GAP_NOISE` times the fit's residual,
-at least the point spacing): the tree then crosses to the opposite face only
-where no path along the surface exists. The same gap refits each normal on the
-neighbours of its own face, so a thin wall's normals and noise estimate are as
-good as a thick part's (mean error 14.5 -> 11.9 degrees on 2 mm walls).
+On walls thinner than a neighbourhood (0.7-1 mm at a 60 mm diagonal) the plain fit's residual measured the
+wall, not the noise: the noise read high, the fit was widened up to 4x and the sheet gap grew past the
+wall. The noise is now read on each point's own sheet, the refit repeated until the gap settles, before the
+fit is widened.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import (
-    breadth_first_order,
-    connected_components,
-    minimum_spanning_tree,
-)
 from scipy.spatial import cKDTree
 
-from cam import CheckCancel, GeometryError
+from cam import CheckCancel
+from cam.reconstruct.orient import NormalsError, orient_outward
 
-__all__ = ["NormalsError", "check_normals", "estimate_normals", "orient_normals"]
+__all__ = ["NormalsError", "check_normals", "estimate_normals"]
 
-# Above this share of confidently parallel neighbour pairs that still point opposite ways
-# after orientation, the cloud has no consistent inside (or is too sparse for its shape).
-_MAX_FLIPPED_SHARE = 0.02
-
-# Noise ratio (see estimate_normals) above which the neighbourhood grows in proportion.
-NOISE_REFERENCE = 0.25
+# Noise ratio (see estimate_normals) above which the neighbourhood grows in proportion. 0.25 when the noise
+# was read on the whole neighbourhood; read on the point's own sheet it comes out 12-13 % lower on thick
+# parts (Fandisk, Block at 0.1-0.5 % noise), and 0.22 keeps the k those parts had.
+NOISE_REFERENCE = 0.22
 
 # Two neighbours are on one sheet while each lies within this many times the median plane-fit residual
 # (about the noise's sigma) of the other's tangent plane: Gaussian noise puts two samples of one face
 # sqrt(2) sigma apart along the normal, so 3 residuals keep 97 % of same-face pairs, while the two faces of a
 # 2 mm wall at the bench's noise (sigma 0.2 mm) lie 10 sigma apart.
 SHEET_GAP_NOISE = 3.0
-
-
-class NormalsError(GeometryError):
-    """Given normals are broken or estimated ones cannot be oriented; the message says what to do."""
 
 
 def check_normals(normals: np.ndarray, n_points: int) -> np.ndarray:
@@ -115,10 +94,10 @@ def estimate_normals(
         Neighbours used for the plane fit and for the orientation graph.
     noise_adaptive : bool
         Widen the neighbourhood on a noisy cloud. The noise is read as the
-        median RMS distance of each point's k neighbours from their plane, in
-        units of the median point spacing (about 0 on a clean scan of a CAD part,
-        0.55-0.65 at Gaussian noise of 0.25 % of the diagonal on the bench's 50k
-        clouds). A plane fit's angular error grows with that ratio and falls
+        median RMS distance of each point's k neighbours on its own sheet from
+        their plane, in units of the median point spacing (about 0 on a clean
+        scan of a CAD part, 0.5-0.57 at Gaussian noise of 0.25 % of the diagonal
+        on the bench's 50k clouds). A plane fit's angular error grows with that ratio and falls
         with the neighbours, so k grows in proportion above a ratio of
         NOISE_REFERENCE, up to 4k. A clean cloud keeps k: a wider fit would
         round its sharp edges.
@@ -130,20 +109,19 @@ def estimate_normals(
     Returns
     -------
     normals : ndarray, shape (n, 3), float64
-        Unit vectors, each component's turned outward (see :func:`orient_normals`).
+        Unit vectors turned outward (see :func:`cam.reconstruct.orient.orient_outward`).
     report : dict
         ``k`` (the one used), ``noise_ratio``, ``sheet_gap`` (the offset from a
         neighbour's tangent plane beyond which a pair is taken for two sheets,
-        the points' units; see :func:`orient_normals`), ``components``,
-        ``flipped_share``.
+        the points' units), and the orientation's report: ``components``,
+        ``flipped_share``, ``orientation``, ``outside_voted_share``,
+        ``outside_votes_disagree`` (``outside_agreement``).
 
     Raises
     ------
     NormalsError
-        When the orientation leaves more than 2 % of nearly parallel neighbour
-        pairs on one sheet pointing opposite ways (a non-orientable or badly
-        undersampled cloud). The two faces of a thin wall point opposite ways
-        by right and are not counted.
+        When the normals cannot be oriented (see
+        :func:`cam.reconstruct.orient.orient_outward`).
     """
     pts = np.asarray(points, dtype=np.float64)
     k = int(min(k, len(pts) - 1))
@@ -154,7 +132,12 @@ def estimate_normals(
         check_cancel()
     normals, residual = _pca_normals(pts, idx)
     spacing = max(float(np.median(dist[:, 0])), 1e-300)
+    # The noise is read on each point's own sheet: on a part whose walls are thinner than a neighbourhood
+    # (0.7 mm walls at a 60 mm diagonal), the plain fit's residual measures the wall, not the noise, and
+    # widening the fit by it made the neighbourhoods straddle more and the sheet gap exceed the wall.
+    normals, residual = _fit_own_sheet(pts, idx, normals, residual, spacing)
     noise = float(np.median(residual) / spacing)
+    sheet_gap = _sheet_gap(residual, spacing)
     wider = min(4 * k, int(round(k * noise / NOISE_REFERENCE)), len(pts) - 1)
     if noise_adaptive and wider > k:
         if check_cancel is not None:
@@ -162,44 +145,46 @@ def estimate_normals(
         k = wider
         dist, idx = tree.query(pts, k=k + 1, workers=workers)
         dist, idx = dist[:, 1:], idx[:, 1:]
-        normals, residual = _pca_normals(pts, idx)
-    # The spacing is the floor: on a clean scan the residual is ~0 while a curved face still bends
-    # away from its tangent plane by (spacing)^2 / (2 radius) within a neighbourhood.
-    sheet_gap = max(SHEET_GAP_NOISE * float(np.median(residual)), spacing)
-    # Where a neighbourhood straddles a thin wall, both faces are parallel, so the first fit's direction
-    # is right; the refit keeps the neighbours on the point's own face, which gives a normal as good as
-    # on a thick part and a residual that measures the noise, not the wall's thickness.
-    own_face = np.abs(np.einsum("nkj,nj->nk", pts[idx] - pts[:, None, :], normals)) < sheet_gap
-    normals, residual = _pca_normals(pts, idx, own_face)
-    sheet_gap = max(SHEET_GAP_NOISE * float(np.median(residual)), spacing)
-    normals, components = orient_normals(pts, normals, idx, dist, sheet_gap=sheet_gap)
+        # Where a wider neighbourhood straddles a thin wall, both faces are parallel, so the plain fit's
+        # direction is right; the refit keeps the neighbours within the narrow fit's sheet gap of the point's
+        # own face, which gives a normal as good as on a thick part. The gap stays the narrow fit's: a wide
+        # fit's residual also measures how the face curves within it.
+        normals, _ = _pca_normals(pts, idx)
+        normals, _ = _pca_normals(pts, idx, _on_own_sheet(pts, idx, normals, sheet_gap))
     if check_cancel is not None:
         check_cancel()
-    dots = np.einsum("ij,ikj->ik", normals, normals[idx])
-    same_sheet = _plane_offsets(pts, normals, idx) < sheet_gap
-    parallel = (np.abs(dots) > 0.7) & same_sheet
-    flipped = (dots < -0.7) & parallel
-    share = float(flipped.sum() / max(parallel.sum(), 1))
-    if share > _MAX_FLIPPED_SHARE:
-        raise NormalsError(
-            f"the estimated normals cannot be oriented consistently ({share:.0%} of neighbouring "
-            "points still face opposite ways): the cloud is non-orientable, very noisy or too sparse "
-            "for its thin parts; upload oriented normals or a denser scan"
-        )
-    return normals, {"k": k, "noise_ratio": round(noise, 4), "sheet_gap": sheet_gap,
-                     "components": int(components), "flipped_share": share}
+    normals, sides = orient_outward(pts, normals, idx, dist, sheet_gap, workers=workers)
+    if check_cancel is not None:
+        check_cancel()
+    return normals, {"k": k, "noise_ratio": round(noise, 4), "sheet_gap": sheet_gap, **sides}
 
 
-def _plane_offsets(points: np.ndarray, normals: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """(n, k) mean distance of each neighbour pair from the other's tangent plane, the points' units."""
-    out = np.empty(idx.shape)
-    step = 200_000  # bounds the (chunk, k, 3) temporaries
-    for start in range(0, len(points), step):
-        sl = slice(start, start + step)
-        e = points[idx[sl]] - points[sl, None, :]
-        out[sl] = 0.5 * (np.abs(np.einsum("nj,nkj->nk", normals[sl], e))
-                         + np.abs(np.einsum("nkj,nkj->nk", normals[idx[sl]], e)))
-    return out
+def _sheet_gap(residual: np.ndarray, spacing: float) -> float:
+    """The offset from a point's tangent plane beyond which a neighbour is on another sheet, the points' units.
+
+    The spacing is the floor: on a clean scan the residual is ~0 while a curved face still bends away from
+    its tangent plane by (spacing)^2 / (2 radius) within a neighbourhood.
+    """
+    return max(SHEET_GAP_NOISE * float(np.median(residual)), spacing)
+
+
+def _fit_own_sheet(points: np.ndarray, idx: np.ndarray, normals: np.ndarray, residual: np.ndarray,
+                   spacing: float, *, rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Refit each normal (n, 3) and residual (n,) on the neighbours within the sheet gap of its own plane.
+
+    Each round takes the gap from the last round's median residual, so a residual inflated by the far face
+    of a thin wall shrinks towards the noise; two rounds settle it (a third changes the bench clouds' noise
+    estimate by under 2 %).
+    """
+    for _ in range(rounds):
+        normals, residual = _pca_normals(points, idx,
+                                         _on_own_sheet(points, idx, normals, _sheet_gap(residual, spacing)))
+    return normals, residual
+
+
+def _on_own_sheet(points: np.ndarray, idx: np.ndarray, normals: np.ndarray, gap: float) -> np.ndarray:
+    """(n, k) bool: the neighbours within ``gap`` (the points' units) of each point's tangent plane."""
+    return np.abs(np.einsum("nkj,nj->nk", points[idx] - points[:, None, :], normals)) < gap
 
 
 def _pca_normals(points: np.ndarray, idx: np.ndarray, keep: np.ndarray | None = None
@@ -227,86 +212,3 @@ def _pca_normals(points: np.ndarray, idx: np.ndarray, keep: np.ndarray | None = 
     return out, rms
 
 
-def orient_normals(
-    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dist: np.ndarray, *, sheet_gap: float = np.inf
-) -> tuple[np.ndarray, int]:
-    """Flip normals to one consistent side along a minimum spanning tree of the k-NN graph.
-
-    Parameters
-    ----------
-    points : ndarray, shape (n, 3), float64
-        Positions, any unit.
-    normals : ndarray, shape (n, 3), float64
-        Unit normals of either sign.
-    idx : ndarray, shape (n, k), integer dtype
-        Each point's k nearest neighbours, self excluded.
-    dist : ndarray, shape (n, k), float64
-        Their distances, the points' units.
-    sheet_gap : float
-        The points' units. A pair's weight grows by (offset / sheet_gap)^2, the
-        offset being the mean distance of each point from the other's tangent
-        plane: beyond one sheet_gap that alone outweighs the worst disagreement
-        of two tangent planes (1 - |cos| <= 1), so the tree only crosses a thin
-        wall or gap where no path along the surface connects the two sides.
-        inf: Hoppe's weight.
-
-    Returns
-    -------
-    normals : ndarray, shape (n, 3), float64
-        The input normals, some negated.
-    components : int
-        Components of the neighbour graph (each is seeded on its own).
-    """
-    n, k = idx.shape
-    rows = np.repeat(np.arange(n), k)
-    cols = idx.reshape(-1)
-    dots = np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols]))
-    # The distance term breaks ties on planar regions (all dots 1) and keeps every weight
-    # strictly positive: scipy's sparse graphs read a zero weight as a missing edge.
-    scale = float(np.median(dist[:, 0])) or 1.0
-    weight = (1.0 - dots) + 1e-3 * dist.reshape(-1) / scale + 1e-9
-    if np.isfinite(sheet_gap):
-        weight = weight + (_plane_offsets(points, normals, idx).reshape(-1) / sheet_gap) ** 2
-    graph = coo_matrix((weight, (rows, cols)), shape=(n, n)).tocsr()
-    graph = graph.maximum(graph.T)
-    tree = minimum_spanning_tree(graph)
-    tree = tree + tree.T
-    count, labels = connected_components(tree, directed=False)
-    out = normals.copy()
-    area = dist[:, -1] ** 2  # about each point's share of the surface (k points within that radius)
-    for comp in range(count):
-        members = np.flatnonzero(labels == comp)
-        centre = points[members].mean(axis=0)
-        # The walk starts at the point farthest from the centre; its side is settled below with the rest.
-        seed = members[np.argmax(np.linalg.norm(points[members] - centre, axis=1))]
-        order, pred = breadth_first_order(tree, seed, directed=False, return_predecessors=True)
-        _propagate(out, order, pred)
-        # The seed's own normal can mislead: the farthest point is often a corner, where the plane fit
-        # blends the faces (a 40 x 40 mm prism at 0.1 % noise: every normal came out inward). Over a
-        # closed surface the outward normal's flux of (p - centre) is three times the volume, so its sign,
-        # summed over the component with each point's share of the area, settles which side is out.
-        if np.sum(area[members] * np.einsum("ij,ij->i", out[members], points[members] - centre)) < 0:
-            out[members] = -out[members]
-    return out, count
-
-
-def _propagate(normals: np.ndarray, order: np.ndarray, pred: np.ndarray) -> None:
-    """Give every node the side of its parent, in breadth-first order (parents come first)."""
-    child = order[1:]
-    parent = pred[child]
-    # sign relative to the parent as estimated; the absolute sign is the product along the path.
-    rel = np.sign(np.einsum("ij,ij->i", normals[child], normals[parent]))
-    rel[rel == 0] = 1.0
-    sign = np.ones(len(normals))
-    position = np.empty(len(normals), dtype=np.int64)
-    position[order] = np.arange(len(order))
-    parent_pos = position[parent]
-    # A loop in BFS order is the simple exact form; 1e6 nodes take well under a second in
-    # numpy-free Python only if kept scalar, so this runs over plain lists.
-    rel_l = rel.tolist()
-    ppos = parent_pos.tolist()
-    signs = [1.0] * len(order)
-    for i in range(1, len(order)):
-        signs[i] = signs[ppos[i - 1]] * rel_l[i - 1]
-    sign[order] = np.asarray(signs)
-    normals[order[1:]] *= sign[order[1:], None]
