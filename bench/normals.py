@@ -124,7 +124,11 @@ def write_report(out: Path, rows: dict, labels: list[str]) -> None:
             ml = sum(min(r["meshlab"]["inside_out"], 1 - r["meshlab"]["inside_out"]) >= WRONG for r in sel)
             lines.append(f"| `{lab}` | {half} | {len(sel)} | {len(sel) - refused - wrong} / {refused} / {wrong} "
                          f"| {len(sel) - ml} / {ml} |")
-    (out / "normals.md").write_text("\n".join(lines) + "\n")
+    path = out / "normals.md"
+    # A hand-written "## Notes" section (what a run showed) survives a rerun of the tables.
+    old = path.read_text() if path.exists() else ""
+    notes = old[old.index("\n## Notes"):] if "\n## Notes" in old else ""
+    path.write_text("\n".join(lines) + "\n" + notes)
 
 
 def main(argv=None) -> None:
