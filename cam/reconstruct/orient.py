@@ -99,6 +99,7 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dis
     turned a wall inside out: refused).
     """
     votes, outside = outside_votes(points, normals, workers=workers)
+    # Which pairs are on one sheet and parallel does not depend on the normals' signs: found once.
     dots, parallel = _parallel_pairs(points, normals, idx, sheet_gap)
     voted = votes != 0
     both = parallel & voted[:, None] & voted[idx]
@@ -108,7 +109,7 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dis
     credible = outside["decided_share"] >= _MIN_VOTED_SHARE and disagree <= _MAX_VOTE_DISAGREEMENT
     if credible:
         oriented, components = orient_normals(points, normals, idx, dist, sheet_gap=sheet_gap, votes=votes)
-        share = _flipped_share(points, oriented, idx, sheet_gap)
+        share = _flipped_share(oriented, idx, parallel)
         if share <= _MAX_FLIPPED_SHARE:
             return oriented, {**report, "components": components, "flipped_share": share, "orientation": "outside"}
     oriented, components = orient_normals(points, normals, idx, dist, sheet_gap=sheet_gap)
@@ -123,7 +124,7 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dis
                 "contradict their neighbours (walls too thin for this noise?); upload oriented normals or a "
                 "less noisy scan"
             )
-    share = _flipped_share(points, oriented, idx, sheet_gap)
+    share = _flipped_share(oriented, idx, parallel)
     if share > _MAX_FLIPPED_SHARE:
         raise NormalsError(
             f"the estimated normals cannot be oriented consistently ({share:.0%} of neighbouring "
@@ -133,9 +134,9 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dis
     return oriented, {**report, "components": components, "flipped_share": share}
 
 
-def _flipped_share(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, sheet_gap: float) -> float:
-    """The share of neighbour pairs on one sheet and parallel whose normals face opposite ways."""
-    dots, parallel = _parallel_pairs(points, normals, idx, sheet_gap)
+def _flipped_share(normals: np.ndarray, idx: np.ndarray, parallel: np.ndarray) -> float:
+    """The share of the ``parallel`` neighbour pairs (n, k) bool whose normals face opposite ways."""
+    dots = np.einsum("ij,ikj->ik", normals, normals[idx])
     return float(np.sum((dots < -0.7) & parallel) / max(parallel.sum(), 1))
 
 
