@@ -43,6 +43,11 @@ def test_stage_writes_a_watertight_mesh_raw(tmp_path, normals):
     r = np.linalg.norm(mesh.points - 5.0, axis=1)
     assert np.abs(r - 20.0).max() < 0.2
     assert seen[-1] == 1.0 and len(seen) > FAST["iterations"]
+    # The header says where the normals came from; a closed sphere's estimated ones are all told by the
+    # space around it.
+    told = [c for c in mesh.comments if "normals" in c]
+    assert told and (("normals given" in told[0]) if normals
+                     else "turned outward by the space around the cloud (100% of points voted)" in told[0])
 
 
 def test_stage_cancel_raises_stage_canceled(tmp_path):

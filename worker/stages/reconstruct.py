@@ -30,12 +30,23 @@ def run_reconstruct(ctx: StageContext) -> dict[str, Path]:
     report = result.report
     comments = [
         f"cloud2cnc reconstruct (IGR, preset {report['preset']})",
-        f"watertight {str(report['mesh']['watertight']).lower()}, normals {report['normals']['source']}",
+        f"watertight {str(report['mesh']['watertight']).lower()}, {_normals_comment(report['normals'])}",
         _fidelity_comment(report["fidelity"]),
     ]
     path = write_ply_mesh(ctx.output("mesh_raw.ply"), result.vertices, result.faces, comments=comments)
     ctx.progress(1.0, None)
     return {"mesh_raw.ply": path}
+
+
+def _normals_comment(normals: dict) -> str:
+    """Where the normals came from and, for estimated ones, how their side was told, for the PLY header."""
+    if normals["source"] != "estimated":
+        return f"normals {normals['source']}"
+    if normals["orientation"] == "outside":
+        how = f"turned outward by the space around the cloud ({normals['outside_voted_share']:.0%} of points voted)"
+    else:
+        how = "turned outward along the surface (the space around the cloud could not tell)"
+    return f"normals estimated (k {normals['k']}), {how}"
 
 
 def _fidelity_comment(fid: dict) -> str:
