@@ -96,9 +96,9 @@ def estimate_normals(
         Widen the neighbourhood on a noisy cloud. The noise is read as the
         median RMS distance of each point's k neighbours on its own sheet from
         their plane, in units of the median point spacing (about 0 on a clean
-        scan of a CAD part, 0.5-0.57 at Gaussian noise of 0.25 % of the diagonal
-        on the bench's 50k clouds). A plane fit's angular error grows with that ratio and falls
-        with the neighbours, so k grows in proportion above a ratio of
+        scan of a CAD part, 0.48-0.58 on most of the bench's 50k clouds at
+        Gaussian noise of 0.25 % of the diagonal). A plane fit's angular error
+        grows with that ratio and falls with the neighbours, so k grows in proportion above a ratio of
         NOISE_REFERENCE, up to 4k. A clean cloud keeps k: a wider fit would
         round its sharp edges.
     workers : int
@@ -153,7 +153,7 @@ def estimate_normals(
         normals, _ = _pca_normals(pts, idx, _on_own_sheet(pts, idx, normals, sheet_gap))
     if check_cancel is not None:
         check_cancel()
-    normals, sides = orient_outward(pts, normals, idx, dist, sheet_gap, workers=workers)
+    normals, sides = orient_outward(pts, normals, idx, dist, sheet_gap)
     if check_cancel is not None:
         check_cancel()
     return normals, {"k": k, "noise_ratio": round(noise, 4), "sheet_gap": sheet_gap, **sides}

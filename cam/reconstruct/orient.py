@@ -60,7 +60,7 @@ class NormalsError(GeometryError):
 
 
 def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dist: np.ndarray,
-                   sheet_gap: float, *, workers: int = 1) -> tuple[np.ndarray, dict]:
+                   sheet_gap: float) -> tuple[np.ndarray, dict]:
     """Turn unoriented normals outward: by the outside votes where they hold, else by the tree alone.
 
     Parameters
@@ -68,8 +68,6 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dis
     points, normals, idx, dist, sheet_gap
         As for :func:`orient_normals` (``sheet_gap`` finite: the offset from a tangent plane beyond which a
         neighbour is on another sheet, the points' units).
-    workers : int
-        Threads for the neighbour query of the votes.
 
     Returns
     -------
@@ -98,7 +96,7 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, idx: np.ndarray, dis
     tree's is taken if it agrees with three votes in four (a tree that contradicts the outside more often has
     turned a wall inside out: refused).
     """
-    votes, outside = outside_votes(points, normals, workers=workers)
+    votes, outside = outside_votes(points, normals, neighbour_dist=dist)
     # Which pairs are on one sheet and parallel does not depend on the normals' signs: found once.
     dots, parallel = _parallel_pairs(points, normals, idx, sheet_gap)
     voted = votes != 0

@@ -69,11 +69,10 @@ def test_outside_votes_read_the_side_of_exact_normals():
     box = trimesh.creation.box(extents=(30.0, 20.0, 10.0))
     pts, face = trimesh.sample.sample_surface(box, 20_000, seed=3)
     normals = box.face_normals[face]
-    votes, report = outside_votes(pts, normals)
+    votes, _ = outside_votes(pts, normals)
     assert np.mean(votes == 1) > 0.99 and not np.any(votes == -1)
     flipped, _ = outside_votes(pts, -normals)
     assert np.array_equal(flipped, -votes)
-    assert report["voxel"] <= report["barrier"]
 
 
 def test_a_scan_with_a_face_missing_is_oriented_by_the_tree():
