@@ -15,6 +15,15 @@ as often on the other face (whose plane puts the query inside): the field grew l
 1-4 mm out of the corners of a bracket scanned at 0.1 % noise. And each point counts by how
 squarely it faces the query (|plane distance| over distance, softened within the blending
 width): a face seen edge-on from the query says little about which side of the part it is.
+
+Where the nearest points lie on two faces that meet at a crease, no mean of their planes is right
+on both faces: beside a hole in one face's samples (random sampling leaves holes of a few spacings)
+the other face's planes are nearest and move the hole's face by up to a mm, out of a convex edge or
+into a concave one (the lumps a CSG block at 0.1 % noise kept). Near a crease the estimate is
+instead the faces' distances combined as the solid they bound, which is exact for planes: the larger
+of two at a convex crease (the solid is where both say inside), the smaller at a concave one, and
+at a corner of three what its creases say. Each face counts by its share of the neighbours, not by
+how near its samples are, since the face with the hole is the one a query beside the hole needs.
 """
 
 from __future__ import annotations
@@ -27,6 +36,19 @@ from cam import CheckCancel
 
 __all__ = ["band_vertices", "plane_distance"]
 
+# Neighbours whose normals are within 30 deg of a face's first (nearest) sample's are on that face.
+_SAME_FACE_COS = float(np.cos(np.radians(30.0)))
+# A face counts fully from a tenth of the neighbours' facing weight (ramped from a twentieth), so that a
+# stray sample with a turned normal is not a face; the neighbours on none of three faces likewise.
+_MIN_FACE_SHARE = 0.1
+# A crease counts fully as convex (concave) where the faces' centres lean below (above) each other's
+# planes by over 0.3 (see _lean; ramped from 0.15): samples of one face with scattered normals are
+# blended as before.
+_CREASE_MARGIN = 0.15
+# The two sides of a crease contradict each other where the weaker says the opposite by over a tenth of
+# the centres' distance (ramped from a twentieth).
+_CONTRADICTION = 0.05
+
 
 def plane_distance(
     queries: np.ndarray,
@@ -38,6 +60,7 @@ def plane_distance(
     workers: int = 1,
     tree: cKDTree | None = None,
     max_distance: float = np.inf,
+    creases: bool = True,
     check_cancel: CheckCancel | None = None,
 ) -> np.ndarray:
     """Blended point-to-tangent-plane distance: a signed distance estimate from oriented points.
@@ -58,9 +81,13 @@ def plane_distance(
     tree : cKDTree, optional
         A tree over ``points``, to reuse one the caller has.
     max_distance : float
-        Only samples this close are blended; a query with none gets NaN. The
+        Only queries with a sample this close are answered; the rest get NaN. The
         bound makes the k-d tree prune, which matters for the many grid
         vertices far from the cloud (unbounded queries there cost ten times more).
+        An answered query blends its ``k`` nearest samples however far they are.
+    creases : bool
+        Combine the faces of neighbours at creases (see the module's docstring); False: the
+        blended planes everywhere (for normals whose fit spans a crease, whose planes are tilted there).
     check_cancel : callable, optional
         Called before each chunk of queries; it stops the work by raising.
 
@@ -79,17 +106,140 @@ def plane_distance(
         if check_cancel is not None:
             check_cancel()
         q = queries[start:start + step]
-        dist, idx = tree.query(q, k=k, workers=workers, distance_upper_bound=max_distance)
+        near = np.ones(len(q), dtype=bool)
+        if np.isfinite(max_distance):
+            near = np.isfinite(tree.query(q, k=1, workers=workers, distance_upper_bound=max_distance)[0])
+        # A query near the cloud blends its k nearest samples however far they are: bounding them too
+        # would keep one face's samples and drop the other's beside an edge, and the plane left puts the
+        # query on the wrong side (a shell of the wrong sign at the band's rim, half a mm out of an edge).
+        dist, idx = tree.query(q[near], k=k, workers=workers)
         if k == 1:
             dist, idx = dist[:, None], idx[:, None]
-        found = np.isfinite(dist)
-        idx = np.where(found, idx, 0)
-        with np.errstate(invalid="ignore"):
-            plane = np.einsum("mkj,mkj->mk", q[:, None, :] - points[idx], normals[idx])
-            facing = (np.abs(plane) + width) / (dist + width)
-            w = np.where(found, np.exp(-(dist - dist[:, :1]) ** 2 / width ** 2) * facing, 0.0)
-            out[start:start + step] = (w * plane).sum(axis=1) / w.sum(axis=1)
+        plane = np.einsum("mkj,mkj->mk", q[near][:, None, :] - points[idx], normals[idx])
+        facing = (np.abs(plane) + width) / (dist + width)
+        part = np.full(len(q), np.nan)
+        if creases:
+            part[near] = _blend_across_creases(plane, dist, facing, points[idx], normals[idx], width)
+        else:
+            part[near] = _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)[0]
+        out[start:start + step] = part
     return out
+
+
+def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width):
+    """The weighted mean of the planes' distances, or where the neighbours lie on two or three faces
+    meeting at creases, the faces' distances combined as the solid they bound: the larger of two at a
+    convex crease, the smaller at a concave one, and at a corner of three the combination its three
+    creases say (see _three_faces). Neighbours on more faces, or creases neither clearly convex nor
+    concave, keep the mean.
+
+    plane, dist, facing: (m, k) signed plane distances, distances and facing weights; nb_points,
+    nb_normals: (m, k, 3); width: the Gaussian weights' width. Returns (m,).
+
+    Each face's distance is its own samples' mean, weighted from its own nearest one, and a face counts
+    by its share of the neighbours (by facing weight) however far beyond the nearest sample they are:
+    beside a hole in one face's samples, that face is the one a query off it needs.
+    """
+    blend, _ = _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)
+    faces, rest = _split_faces(dist, nb_normals)
+    total = facing.sum(axis=1)
+    stats = [_face(plane, dist, facing, f, nb_points, nb_normals, width) for f in faces]
+    (s_a, c_a, n_a), (s_b, c_b, n_b), (s_c, c_c, n_c) = stats
+    share_b, share_c = ((facing * f).sum(axis=1) / total for f in faces[1:])
+    lean_ab = _lean(c_a, n_a, c_b, n_b, width)
+    lean_ac = _lean(c_a, n_a, c_c, n_c, width)
+    lean_bc = _lean(c_b, n_b, c_c, n_c, width)
+    two = _two_faces(s_a, s_b, lean_ab)
+    three = _three_faces((s_a, s_b, s_c), (lean_ab, lean_ac, lean_bc))
+    out = _toward(blend, two, _ramp(share_b) * _clarity(lean_ab))
+    clear = np.minimum.reduce([_clarity(lean_ab), _clarity(lean_ac), _clarity(lean_bc)])
+    out = _toward(out, _toward(blend, three, clear), _ramp(share_c))
+    return _toward(out, blend, _ramp((facing * rest).sum(axis=1) / total))
+
+
+def _weighted(plane, dist, facing, mask, width):
+    """The mean of the masked planes' distances, Gaussian-weighted by distance beyond the nearest masked
+    sample and by facing; 0 where the mask is empty."""
+    near = np.where(mask, dist, np.inf).min(axis=1, keepdims=True)
+    w = np.where(mask, np.exp(-(dist - np.where(np.isfinite(near), near, 0.0)) ** 2 / width ** 2) * facing, 0.0)
+    total = w.sum(axis=1)
+    return (w * plane).sum(axis=1) / np.where(total > 0.0, total, 1.0), w
+
+
+def _split_faces(dist, nb_normals):
+    """Up to three faces among the neighbours: those within 30 deg of the nearest one's normal, then of
+    the nearest neighbour left, twice; (m, k) bool masks, and the mask of the neighbours left over."""
+    left = np.ones(dist.shape, dtype=bool)
+    faces = []
+    for _ in range(3):
+        ref = np.argmin(np.where(left, dist, np.inf), axis=1)
+        n_ref = np.take_along_axis(nb_normals, ref[:, None, None], axis=1)[:, 0]
+        face = left & (np.einsum("mkj,mj->mk", nb_normals, n_ref) > _SAME_FACE_COS)
+        faces.append(face)
+        left &= ~face
+    return faces, left
+
+
+def _face(plane, dist, facing, mask, nb_points, nb_normals, width):
+    """A face's distance (see _weighted), centre (m, 3) and unit normal (m, 3)."""
+    value, w = _weighted(plane, dist, facing, mask, width)
+    total = w.sum(axis=1)
+    centre = np.einsum("mk,mkj->mj", w, nb_points) / np.where(total > 0.0, total, 1.0)[:, None]
+    normal = np.einsum("mk,mkj->mj", w, nb_normals)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    return value, centre, normal
+
+
+def _lean(c_x, n_x, c_y, n_y, floor):
+    """How two faces meet, from their centres and normals: negative across a convex crease (each face's
+    samples below the other's plane), positive across a concave one (above), 0 where the two sides
+    say opposite things clearly (a face that wraps round a corner of the other: its samples lie on the
+    two sides of the other's plane).
+
+    The measure is gap . (n_x - n_y), gap = c_y - c_x, as a share of |gap| |n_x - n_y|: samples hugging
+    the crease on one side (their centre on the other's plane) still count through the other side's.
+    """
+    gap = c_y - c_x
+    size = np.maximum(np.linalg.norm(gap, axis=1), floor)
+    below_x = (gap * n_x).sum(axis=1) / size    # y's centre against x's plane
+    below_y = -(gap * n_y).sum(axis=1) / size   # x's centre against y's plane
+    lean = (below_x + below_y) / np.maximum(np.linalg.norm(n_x - n_y, axis=1), 0.5)
+    contradiction = np.where(np.sign(below_x) != np.sign(below_y), np.minimum(np.abs(below_x), np.abs(below_y)),
+                             0.0)
+    return lean * (1.0 - np.clip((contradiction - _CONTRADICTION) / _CONTRADICTION, 0.0, 1.0))
+
+
+def _clarity(lean):
+    """0 where a crease is neither clearly convex nor concave, 1 from twice the margin."""
+    return np.clip((np.abs(lean) - _CREASE_MARGIN) / _CREASE_MARGIN, 0.0, 1.0)
+
+
+def _ramp(share):
+    """How fully a face (or the neighbours on none of three) counts, by its share of the weight."""
+    return np.clip(2.0 * share / _MIN_FACE_SHARE - 1.0, 0.0, 1.0)
+
+
+def _toward(base, target, amount):
+    return base + amount * (target - base)
+
+
+def _two_faces(s_x, s_y, lean):
+    return np.where(lean < 0.0, np.maximum(s_x, s_y), np.minimum(s_x, s_y))
+
+
+def _three_faces(s, leans):
+    """The three faces' distances combined by their creases' kinds (pairs ab, ac, bc, lean < 0 convex):
+    the largest at a convex corner, the smallest at a concave one; where one crease differs from the
+    other two, the face opposite it (c for ab, b for ac, a for bc) cuts the solid of that crease."""
+    s_a, s_b, s_c = s
+    convex = [lean < 0.0 for lean in leans]
+    count = sum(c.astype(np.int64) for c in convex)
+    pairs = ((s_a, s_b, s_c), (s_a, s_c, s_b), (s_b, s_c, s_a))
+    one_concave = np.select([~c for c in convex], [np.maximum(np.minimum(x, y), z) for x, y, z in pairs])
+    one_convex = np.select(convex, [np.minimum(np.maximum(x, y), z) for x, y, z in pairs])
+    return np.select([count == 3, count == 2, count == 1],
+                     [np.maximum.reduce([s_a, s_b, s_c]), one_concave, one_convex],
+                     np.minimum.reduce([s_a, s_b, s_c]))
 
 
 def band_vertices(points: np.ndarray, lo: np.ndarray, cell: float, dims: np.ndarray, band: float) -> np.ndarray:

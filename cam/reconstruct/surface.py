@@ -170,7 +170,7 @@ def reconstruct_surface(
     with _torch_threads(threads):
         with _timed(timings, "init"):
             field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, params.seed, dev,
-                                        check_cancel)
+                                        check_cancel, creases=_normals_hold_at_creases(normals_report, params))
         with _timed(timings, "train"):
             training = _train(field, groups, unit, nrm, sigma, lo, hi, opts, params, dev, progress, check_cancel)
         with _timed(timings, "extract"):
@@ -275,20 +275,31 @@ def _sampling_box(unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo - margin, hi + margin
 
 
-def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel):
+def _normals_hold_at_creases(normals_report: dict[str, Any], params: ReconstructParams) -> bool:
+    """Whether the grid's start may combine faces at creases (see :mod:`cam.reconstruct.prior`).
+
+    Normals estimated with a fit widened for noise (to over twice ``normals_k``) are averaged across
+    a crease over more than the holes in the samples that the combination is for, and planes tilted
+    there put it on the wrong side: under a concave crease of a bracket at 0.25 % noise (k widened
+    to 37) it left a tunnel, a handle the part does not have. Such clouds keep the blended planes.
+    """
+    return normals_report["source"] == "given" or normals_report["k"] <= 2 * params.normals_k
+
+
+def _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, seed, dev, check_cancel, *, creases):
     """The field and its Adam parameter groups (per-level learning-rate factors for the grid)."""
     if opts["field"] == "grid":
-        return _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check_cancel)
+        return _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check_cancel, creases=creases)
     return _make_network(opts, unit, seed, dev), None
 
 
-def _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check_cancel):
+def _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check_cancel, *, creases):
     """A grid pyramid started from the oriented-plane distance, and its per-level parameter groups."""
     field = GridField(lo, hi, finest_cells=opts["grid_cells"], levels=opts["levels"]).to(dev)
     # The coarsest level takes the prior everywhere (few vertices, so unbounded queries are
     # cheap); the finest level adds the detail in a band around the cloud, where training acts.
     coarse = plane_distance(field.vertices(0), unit, nrm, spacing=spacing, k=opts["prior_k"],
-                            workers=workers, tree=tree, check_cancel=check_cancel)
+                            workers=workers, tree=tree, creases=creases, check_cancel=check_cancel)
     field.set_level(0, torch.as_tensor(coarse))
     lo_f, cell, dims = field.lo.detach().cpu().double().numpy(), field.cell[-1], field.dims[-1]
     axes = [lo_f[a] + cell * np.arange(dims[a]) for a in range(3)]
@@ -298,7 +309,7 @@ def _make_grid_field(opts, lo, hi, unit, nrm, spacing, tree, workers, dev, check
     fine = np.full(int(np.prod(dims)), np.nan)
     fine[near] = plane_distance(np.stack([axes[0][i], axes[1][j], axes[2][k]], axis=1), unit, nrm, spacing=spacing,
                                 k=opts["prior_k"], workers=workers, tree=tree, max_distance=band,
-                                check_cancel=check_cancel)
+                                creases=creases, check_cancel=check_cancel)
     with torch.no_grad():
         base = field.lattice(axes).reshape(-1).double().cpu().numpy()
     residual = np.where(np.isfinite(fine), fine - base, 0.0)
