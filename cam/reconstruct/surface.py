@@ -126,7 +126,8 @@ def reconstruct_surface(
         ``vertices`` float64 (v, 3) in the input's units and frame, ``faces``
         int64 (f, 3) wound outward, and the report: ``points``, ``normals``
         (``"given"`` or ``"estimated"`` and the estimate's details), ``preset``,
-        the effective ``options``, ``device``, ``threads``, ``normalisation``
+        the effective ``options`` (``prior_creases``: whether the grid's start combined faces at
+        creases; see :mod:`cam.reconstruct.prior`), ``device``, ``threads``, ``normalisation``
         (``centre`` in input units, ``scale``), ``training`` (``iterations``,
         final loss terms), ``mesh`` (vertex and face counts, ``watertight``,
         components, ``cell_units``), ``fidelity`` (the mesh against its own
@@ -167,10 +168,11 @@ def reconstruct_surface(
     check_cancel()
 
     lo, hi = _sampling_box(unit)
+    creases = _normals_hold_at_creases(normals_report, params)
     with _torch_threads(threads):
         with _timed(timings, "init"):
             field, groups = _make_field(opts, lo, hi, unit, nrm, spacing, tree, workers, params.seed, dev,
-                                        check_cancel, creases=_normals_hold_at_creases(normals_report, params))
+                                        check_cancel, creases=creases)
         with _timed(timings, "train"):
             training = _train(field, groups, unit, nrm, sigma, lo, hi, opts, params, dev, progress, check_cancel)
         with _timed(timings, "extract"):
@@ -196,7 +198,7 @@ def reconstruct_surface(
         "preset": params.preset,
         "options": {**opts, "eikonal_weight": params.eikonal_weight, "normal_weight": params.normal_weight,
                     "normals_k": params.normals_k, "max_faces": params.max_faces, "sharpen": params.sharpen,
-                    "seed": params.seed},
+                    "seed": params.seed, "prior_creases": creases},
         "device": str(dev),
         "threads": torch.get_num_threads() if threads is None else threads,
         "normalisation": {"centre": centre.tolist(), "scale": scale},
