@@ -111,7 +111,7 @@ def test_the_sign_at_corners_beside_a_hole(corner):
     """Exact samples of the L with a 0.7 mm hole within 0.8 mm of each axis of a corner (four convex
     ones, and the two where the concave inner edge meets a side), 4,000 queries within 1.2 mm of it:
     three faces' planes combined by their creases leave no query more than 0.4 mm off the surface on
-    the wrong side (their mean left some 0.4-0.64 mm off at convex corners)."""
+    the wrong side (their mean left queries 0.44-0.64 mm off on three of the convex corners)."""
     corner = np.asarray(corner)
     rng = np.random.default_rng(1)
     worst = 0.0
