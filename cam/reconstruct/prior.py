@@ -143,25 +143,21 @@ def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width):
     blend, _ = _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)
     faces, rest = _split_faces(dist, nb_normals)
     total = facing.sum(axis=1)
-    share_b, share_c = ((facing * f).sum(axis=1) / total for f in faces[1:])
+    share_b, share_c, share_rest = ((facing * f).sum(axis=1) / total for f in (*faces[1:], rest))
     # Most queries see one face (the rest below a twentieth of the weight) and keep the mean: only the
     # others pay for the faces' statistics (three times the mean's cost where all would).
     mixed = np.flatnonzero((_ramp(share_b) > 0.0) | (_ramp(share_c) > 0.0))
-    if len(mixed) == 0:
-        return blend
-    plane, dist, facing, nb_points, nb_normals, total, share_b, share_c, rest = (
-        a[mixed] for a in (plane, dist, facing, nb_points, nb_normals, total, share_b, share_c, rest))
-    faces = [f[mixed] for f in faces]
     out = blend.copy()
-    out[mixed] = _combine_faces(plane, dist, facing, nb_points, nb_normals, width, blend[mixed], faces, rest,
-                                total, share_b, share_c)
+    if len(mixed):
+        out[mixed] = _combine_faces(*(a[mixed] for a in (plane, dist, facing, nb_points, nb_normals, blend,
+                                                          *faces, share_b, share_c, share_rest)), width)
     return out
 
 
-def _combine_faces(plane, dist, facing, nb_points, nb_normals, width, blend, faces, rest, total, share_b,
-                   share_c):
-    """_blend_across_creases on the queries that see more than one face."""
-    stats = [_face(plane, dist, facing, f, nb_points, nb_normals, width) for f in faces]
+def _combine_faces(plane, dist, facing, nb_points, nb_normals, blend, face_a, face_b, face_c, share_b, share_c,
+                   share_rest, width):
+    """_blend_across_creases on the queries that see more than one face (each array cut to them)."""
+    stats = [_face(plane, dist, facing, f, nb_points, nb_normals, width) for f in (face_a, face_b, face_c)]
     (s_a, c_a, n_a), (s_b, c_b, n_b), (s_c, c_c, n_c) = stats
     lean_ab = _lean(c_a, n_a, c_b, n_b, width)
     lean_ac = _lean(c_a, n_a, c_c, n_c, width)
@@ -171,7 +167,7 @@ def _combine_faces(plane, dist, facing, nb_points, nb_normals, width, blend, fac
     out = _toward(blend, two, _ramp(share_b) * _clarity(lean_ab))
     clear = np.minimum.reduce([_clarity(lean_ab), _clarity(lean_ac), _clarity(lean_bc)])
     out = _toward(out, _toward(blend, three, clear), _ramp(share_c))
-    return _toward(out, blend, _ramp((facing * rest).sum(axis=1) / total))
+    return _toward(out, blend, _ramp(share_rest))
 
 
 def _weighted(plane, dist, facing, mask, width):
