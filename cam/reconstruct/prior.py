@@ -24,6 +24,14 @@ instead the faces' distances combined as the solid they bound, which is exact fo
 of two at a convex crease (the solid is where both say inside), the smaller at a concave one, and
 at a corner of three what its creases say. Each face counts by its share of the neighbours, not by
 how near its samples are, since the face with the hole is the one a query beside the hole needs.
+
+A query farther from the cloud than a few spacings (across a gap in the scan: an unscanned band, the
+sparse end of a scan) is where the nearest samples mislead most: all k can lie on one face, whose plane
+extended past the face's end puts the query on the wrong side. Such a query blends more samples from
+a cloud thinned in step with its distance, so that they reach as far round it at any distance, with a
+width in step too, and combines their faces at creases also where normals estimated with a widened
+fit keep the mean near the cloud (see ``creases``): the mean of two faces' planes across a gap leaves a
+fin along their bisector.
 """
 
 from __future__ import annotations
@@ -48,6 +56,14 @@ _CREASE_MARGIN = 0.15
 # The two sides of a crease contradict each other where the weaker says the opposite by over a tenth of
 # the centres' distance (ramped from a twentieth).
 _CONTRADICTION = 0.05
+# A query farther than six spacings from the cloud (see the module's docstring) blends 4k samples, with
+# a Gaussian width of half its distance: the nearest of the cloud thinned to one sample a voxel, the
+# voxel doubling with each doubling of the distance (k nearest put a fin 4 mm out of a convex crease of
+# Fandisk with a 3 mm band unscanned).
+_FAR_SPACINGS = 6.0
+_FAR_K = 4
+_FAR_WIDTH = 0.5
+_FAR_THINNING = 3.0  # the thinned spacing, about a third of the query's distance
 
 
 def plane_distance(
@@ -99,6 +115,8 @@ def plane_distance(
     """
     tree = tree if tree is not None else cKDTree(points)
     k = int(min(k, len(points)))
+    k_far = int(min(_FAR_K * k, len(points)))
+    levels = None
     out = np.empty(len(queries))
     width = 2.0 * spacing
     step = 65_536  # about a second per chunk on a busy core, so a cancel is seen promptly
@@ -112,29 +130,78 @@ def plane_distance(
         # A query near the cloud blends its k nearest samples however far they are: bounding them too
         # would keep one face's samples and drop the other's beside an edge, and the plane left puts the
         # query on the wrong side (a shell of the wrong sign at the band's rim, half a mm out of an edge).
-        dist, idx = tree.query(q[near], k=k, workers=workers)
-        if k == 1:
-            dist, idx = dist[:, None], idx[:, None]
-        plane = np.einsum("mkj,mkj->mk", q[near][:, None, :] - points[idx], normals[idx])
-        facing = (np.abs(plane) + width) / (dist + width)
+        qn = q[near]
+        dist, idx = _nearest(tree, qn, k, workers)
+        value = _blend(qn, dist, points[idx], normals[idx], np.full((len(qn), 1), width), creases)
+        far = np.flatnonzero(dist[:, 0] > _FAR_SPACINGS * spacing)
+        if len(far) and k_far > k:
+            levels = levels if levels is not None else _thinned_levels(tree, points, spacing, k_far)
+            value[far] = _blend_far(qn[far], dist[far, 0], levels, points, normals, spacing, k_far, workers)
         part = np.full(len(q), np.nan)
-        if creases:
-            part[near] = _blend_across_creases(plane, dist, facing, points[idx], normals[idx], width)
-        else:
-            part[near] = _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)[0]
+        part[near] = value
         out[start:start + step] = part
     return out
+
+
+def _thinned_levels(tree, points, spacing, k):
+    """The cloud, then thinned to one sample a voxel of 2, 4, 8, ... spacings (the sample nearest the
+    voxel's centre) while at least 4k samples are left: a list of (tree, indices into ``points``)."""
+    levels = [(tree, np.arange(len(points)))]
+    size = 2.0 * spacing
+    while True:
+        cell = np.floor(points / size)
+        off = np.linalg.norm(points - (cell + 0.5) * size, axis=1)
+        order = np.lexsort((off, *cell.T[::-1]))
+        _, first = np.unique(cell[order], axis=0, return_index=True)
+        keep = np.sort(order[first])
+        if len(keep) < 4 * k:
+            return levels
+        levels.append((cKDTree(points[keep]), keep))
+        size *= 2.0
+
+
+def _blend_far(q, near_dist, levels, points, normals, spacing, k, workers):
+    """The estimate at queries farther than _FAR_SPACINGS from the cloud (q (m, 3), near_dist (m,) their
+    nearest sample's distance): each from the k nearest samples of the level of ``levels`` (the full
+    cloud, then thinned ones) whose spacing is about a third of its distance, faces combined at creases."""
+    level = np.clip(np.floor(np.log2(near_dist / (_FAR_THINNING * spacing))).astype(np.int64), 0, len(levels) - 1)
+    out = np.empty(len(q))
+    for j in np.unique(level):
+        at = np.flatnonzero(level == j)
+        tree, keep = levels[j]
+        dist, idx = _nearest(tree, q[at], k, workers)
+        idx = keep[idx]
+        width = np.maximum(2.0 * spacing * 2.0 ** j, _FAR_WIDTH * dist[:, :1])
+        out[at] = _blend(q[at], dist, points[idx], normals[idx], width, True)
+    return out
+
+
+def _nearest(tree, q, k, workers):
+    dist, idx = tree.query(q, k=k, workers=workers)
+    return (dist[:, None], idx[:, None]) if k == 1 else (dist, idx)
+
+
+def _blend(q, dist, nb_points, nb_normals, width, creases):
+    """The estimate at queries q (m, 3) from their neighbours (dist (m, k); nb_points, nb_normals
+    (m, k, 3)) with Gaussian widths ``width`` (m, 1): the weighted mean of the planes, or with
+    ``creases`` their faces combined where they meet at creases."""
+    plane = np.einsum("mkj,mkj->mk", q[:, None, :] - nb_points, nb_normals)
+    facing = (np.abs(plane) + width) / (dist + width)
+    if creases:
+        return _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width)
+    return _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)[0]
 
 
 def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width):
     """The weighted mean of the planes' distances, or where the neighbours lie on two or three faces
     meeting at creases, the faces' distances combined as the solid they bound: the larger of two at a
     convex crease, the smaller at a concave one, and at a corner of three the combination its three
-    creases say (see _three_faces). Neighbours on more faces, or creases neither clearly convex nor
-    concave, keep the mean.
+    creases say (see _three_faces). Neighbours on more faces, or a crease of the two main faces neither
+    clearly convex nor concave, keep the mean; a third face whose creases are unclear (one that does not
+    meet the others, seen across the part) keeps the two main faces' combination.
 
     plane, dist, facing: (m, k) signed plane distances, distances and facing weights; nb_points,
-    nb_normals: (m, k, 3); width: the Gaussian weights' width. Returns (m,).
+    nb_normals: (m, k, 3); width: (m, 1) the Gaussian weights' widths. Returns (m,).
 
     Each face's distance is its own samples' mean, weighted from its own nearest one, and a face counts
     by its share of the neighbours (by facing weight) however far beyond the nearest sample they are:
@@ -150,7 +217,7 @@ def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width):
     out = blend.copy()
     if len(mixed):
         out[mixed] = _combine_faces(*(a[mixed] for a in (plane, dist, facing, nb_points, nb_normals, blend,
-                                                          *faces, share_b, share_c, share_rest)), width)
+                                                          *faces, share_b, share_c, share_rest)), width[mixed])
     return out
 
 
@@ -159,14 +226,14 @@ def _combine_faces(plane, dist, facing, nb_points, nb_normals, blend, face_a, fa
     """_blend_across_creases on the queries that see more than one face (each array cut to them)."""
     stats = [_face(plane, dist, facing, f, nb_points, nb_normals, width) for f in (face_a, face_b, face_c)]
     (s_a, c_a, n_a), (s_b, c_b, n_b), (s_c, c_c, n_c) = stats
-    lean_ab = _lean(c_a, n_a, c_b, n_b, width)
-    lean_ac = _lean(c_a, n_a, c_c, n_c, width)
-    lean_bc = _lean(c_b, n_b, c_c, n_c, width)
+    lean_ab, lean_ac, lean_bc = (_lean(*x, *y, width[:, 0]) for x, y in (((c_a, n_a), (c_b, n_b)),
+                                                                        ((c_a, n_a), (c_c, n_c)),
+                                                                        ((c_b, n_b), (c_c, n_c))))
     two = _two_faces(s_a, s_b, lean_ab)
     three = _three_faces((s_a, s_b, s_c), (lean_ab, lean_ac, lean_bc))
     out = _toward(blend, two, _ramp(share_b) * _clarity(lean_ab))
     clear = np.minimum.reduce([_clarity(lean_ab), _clarity(lean_ac), _clarity(lean_bc)])
-    out = _toward(out, _toward(blend, three, clear), _ramp(share_c))
+    out = _toward(out, _toward(out, three, clear), _ramp(share_c))
     return _toward(out, blend, _ramp(share_rest))
 
 

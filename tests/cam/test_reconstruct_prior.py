@@ -127,6 +127,34 @@ def test_the_sign_at_corners_beside_a_hole(corner):
     assert worst <= 0.4, f"a query {worst:.2f} mm off the surface is on the wrong side"
 
 
+@pytest.mark.parametrize("edge", [(30.0, 10.0, 8.0), (8.0, 10.0, 8.0), (30.0, 10.0, 0.0), (0.0, 10.0, 24.0)])
+@pytest.mark.parametrize("creases", [True, False])
+def test_the_sign_across_an_unscanned_band(edge, creases):
+    """Exact samples of the L with no sample in an oblique band 3.5 mm wide (28 spacings; 7.5 mm along a
+    face it crosses at a slant) across an edge (two convex, the concave inner one, the far top one):
+    queries in the band within 3.5 mm of the edge are up to 3.9 mm from any sample, and their 16 nearest
+    can all lie on one face, whose plane extended past that face's end across the band put queries 1.8-2.7 mm
+    off the surface on the wrong side (a fin out of a convex crease of Fandisk with a band unscanned). Far
+    queries blend samples all round them and combine the faces at creases, with or without the crease rule
+    near the cloud: none more than 1 mm off the surface on the wrong side (0.69 mm at most)."""
+    edge = np.asarray(edge)
+    axis = np.array([1.0, 0.45, 0.3]) / np.linalg.norm([1.0, 0.45, 0.3])
+    mesh = _l_solid()
+    rng = np.random.default_rng(0)
+    points, face = trimesh.sample.sample_surface(mesh, 40_000, seed=0)
+    keep = np.abs((points - edge) @ axis) > 1.75
+    points, normals = points[keep], mesh.face_normals[face][keep]
+    tree = cKDTree(points)
+    spacing = float(np.median(tree.query(points, k=2)[0][:, 1]))
+    queries = edge + rng.uniform(-3.5, 3.5, size=(20_000, 3))
+    queries = queries[np.abs((queries - edge) @ axis) < 1.75]
+    exact = _signed_distance_l(queries)
+    got = plane_distance(queries, points, normals, spacing=spacing, k=16, tree=tree, creases=creases)
+    wrong = np.sign(got) != np.sign(exact)
+    worst = float(np.abs(exact[wrong]).max(initial=0.0))
+    assert worst <= 1.0, f"a query {worst:.2f} mm off the surface is on the wrong side"
+
+
 def test_a_bound_on_the_distance_only_picks_the_queries():
     """A query with a sample within max_distance gets the same value as without the bound (the bound says
     which queries are answered, not which samples count: near its rim it kept one face of an edge and
