@@ -31,7 +31,9 @@ extended past the face's end puts the query on the wrong side. Such a query blen
 a cloud thinned in step with its distance, so that they reach as far round it at any distance, with a
 width in step too, and combines their faces at creases also where normals estimated with a widened
 fit keep the mean near the cloud (see ``creases``): the mean of two faces' planes across a gap leaves a
-fin along their bisector.
+fin along their bisector. Seeing that far round, it also sees through thin walls: a sample that a nearer
+one's tangent plane hides from it does not count, and faces are told apart by their planes as well as
+their normals (a tray's floor and its walls' rims are parallel), the largest first.
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ _FAR_SPACINGS = 6.0
 _FAR_K = 4
 _FAR_WIDTH = 0.5
 _FAR_THINNING = 3.0  # the thinned spacing, about a third of the query's distance
+_OCCLUDERS = 16  # the nearest neighbours that may hide the others from a far query
 
 
 def plane_distance(
@@ -166,13 +169,40 @@ def _blend_far(q, near_dist, levels, points, normals, spacing, k, workers):
     cloud, then thinned ones) whose spacing is about a third of its distance, faces combined at creases."""
     level = np.clip(np.floor(np.log2(near_dist / (_FAR_THINNING * spacing))).astype(np.int64), 0, len(levels) - 1)
     out = np.empty(len(q))
+    step = 2048  # the faces' and hiding's (step, k, k) arrays stay within some tens of MB
     for j in np.unique(level):
-        at = np.flatnonzero(level == j)
         tree, keep = levels[j]
-        dist, idx = _nearest(tree, q[at], k, workers)
-        idx = keep[idx]
-        width = np.maximum(2.0 * spacing * 2.0 ** j, _FAR_WIDTH * dist[:, :1])
-        out[at] = _blend(q[at], dist, points[idx], normals[idx], width, True)
+        radius = 2.0 * spacing * 2.0 ** j
+        on_level = np.flatnonzero(level == j)
+        for start in range(0, len(on_level), step):
+            at = on_level[start:start + step]
+            dist, idx = _nearest(tree, q[at], k, workers)
+            nb_points, nb_normals = points[keep[idx]], normals[keep[idx]]
+            hidden = _hidden(q[at], dist, nb_points, nb_normals, radius)
+            width = np.maximum(radius, _FAR_WIDTH * dist[:, :1])
+            out[at] = _blend(q[at], np.where(hidden, np.inf, dist), nb_points, nb_normals, width, True,
+                             plane_tol=radius)
+    return out
+
+
+def _hidden(q, dist, nb_points, nb_normals, radius):
+    """(m, k) bool: the neighbours a nearer one hides from the query, the line of sight to them crossing the
+    nearer one's tangent plane within ``radius`` of it (q (m, 3), dist (m, k), nb_points and nb_normals
+    (m, k, 3)). A far query sees both faces of a thin wall among its neighbours, and the far face's planes
+    put a query in front of the wall inside it (the cavity of a tray with 2 mm walls filled). Only queries
+    whose neighbours' planes disagree in sign are looked at: elsewhere hiding cannot change the side."""
+    out = np.zeros(dist.shape, dtype=bool)
+    plane = np.einsum("mkd,mkd->mk", q[:, None, :] - nb_points, nb_normals)
+    at = np.flatnonzero((plane > 0.0).any(axis=1) & (plane < 0.0).any(axis=1))
+    near = min(_OCCLUDERS, dist.shape[1])
+    x = q[at].astype(np.float32)
+    p, n = nb_points[at].astype(np.float32), nb_normals[at].astype(np.float32)
+    pj, nj, front = p[:, :near], n[:, :near], plane[at, :near].astype(np.float32)  # q against plane j
+    behind = np.einsum("mijd,mjd->mij", p[:, :, None, :] - pj[:, None, :, :], nj)  # sample i against plane j
+    crosses = (np.sign(behind) == -np.sign(front[:, None, :])) & (dist[at, None, :near] < dist[at, :, None])
+    t = front[:, None, :] / np.where(crosses, front[:, None, :] - behind, 1.0)
+    hit = x[:, None, None, :] + t[..., None] * (p[:, :, None, :] - x[:, None, None, :])
+    out[at] = (crosses & (np.linalg.norm(hit - pj[:, None, :, :], axis=-1) < radius)).any(axis=2)
     return out
 
 
@@ -181,18 +211,18 @@ def _nearest(tree, q, k, workers):
     return (dist[:, None], idx[:, None]) if k == 1 else (dist, idx)
 
 
-def _blend(q, dist, nb_points, nb_normals, width, creases):
+def _blend(q, dist, nb_points, nb_normals, width, creases, plane_tol=None):
     """The estimate at queries q (m, 3) from their neighbours (dist (m, k); nb_points, nb_normals
     (m, k, 3)) with Gaussian widths ``width`` (m, 1): the weighted mean of the planes, or with
     ``creases`` their faces combined where they meet at creases."""
     plane = np.einsum("mkj,mkj->mk", q[:, None, :] - nb_points, nb_normals)
     facing = (np.abs(plane) + width) / (dist + width)
     if creases:
-        return _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width)
+        return _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width, plane_tol)
     return _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)[0]
 
 
-def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width):
+def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width, plane_tol=None):
     """The weighted mean of the planes' distances, or where the neighbours lie on two or three faces
     meeting at creases, the faces' distances combined as the solid they bound: the larger of two at a
     convex crease, the smaller at a concave one, and at a corner of three the combination its three
@@ -207,8 +237,9 @@ def _blend_across_creases(plane, dist, facing, nb_points, nb_normals, width):
     by its share of the neighbours (by facing weight) however far beyond the nearest sample they are:
     beside a hole in one face's samples, that face is the one a query off it needs.
     """
-    blend, _ = _weighted(plane, dist, facing, np.ones(plane.shape, dtype=bool), width)
-    faces, rest = _split_faces(dist, nb_normals)
+    seen = np.isfinite(dist)
+    blend, _ = _weighted(plane, dist, facing, seen, width)
+    faces, rest = _split_faces(dist, nb_normals, nb_points, plane_tol)
     total = facing.sum(axis=1)
     share_b, share_c, share_rest = ((facing * f).sum(axis=1) / total for f in (*faces[1:], rest))
     # Most queries see one face (the rest below a twentieth of the weight) and keep the mean: only the
@@ -246,15 +277,32 @@ def _weighted(plane, dist, facing, mask, width):
     return (w * plane).sum(axis=1) / np.where(total > 0.0, total, 1.0), w
 
 
-def _split_faces(dist, nb_normals):
+def _split_faces(dist, nb_normals, nb_points=None, plane_tol=None):
     """Up to three faces among the neighbours: those within 30 deg of the nearest one's normal, then of
-    the nearest neighbour left, twice; (m, k) bool masks, and the mask of the neighbours left over."""
-    left = np.ones(dist.shape, dtype=bool)
+    the nearest neighbour left, twice; (m, k) bool masks, and the mask of the neighbours left over.
+
+    With ``plane_tol`` (far queries, which see much of the part): a face is the neighbours within 30 deg
+    of a reference's normal and within ``plane_tol`` of its plane (a tray's floor and its walls' rims are
+    parallel, not one face), the reference the neighbour with the most others left on its face, so that a
+    few samples with turned normals take no face's place."""
+    left = np.isfinite(dist)
+    same = None
+    if plane_tol is not None:
+        unit, at = nb_normals.astype(np.float32), nb_points.astype(np.float32)
+        offset = np.einsum("mkd,mkd->mk", at, unit)
+        across = np.matmul(unit, at.transpose(0, 2, 1)) - offset[:, :, None]  # sample l against plane k
+        same = ((np.matmul(unit, unit.transpose(0, 2, 1)) > _SAME_FACE_COS)
+                & (np.abs(across) < plane_tol)).astype(np.float32)
     faces = []
     for _ in range(3):
-        ref = np.argmin(np.where(left, dist, np.inf), axis=1)
-        n_ref = np.take_along_axis(nb_normals, ref[:, None, None], axis=1)[:, 0]
-        face = left & (np.einsum("mkj,mj->mk", nb_normals, n_ref) > _SAME_FACE_COS)
+        if same is not None:
+            count = np.matmul(same, left[:, :, None].astype(np.float32))[:, :, 0]
+            ref = np.argmax(np.where(left, count, -1.0), axis=1)
+            face = left & (np.take_along_axis(same, ref[:, None, None], axis=1)[:, 0] > 0.0)
+        else:
+            ref = np.argmin(np.where(left, dist, np.inf), axis=1)
+            n_ref = np.take_along_axis(nb_normals, ref[:, None, None], axis=1)[:, 0]
+            face = left & (np.einsum("mkj,mj->mk", nb_normals, n_ref) > _SAME_FACE_COS)
         faces.append(face)
         left &= ~face
     return faces, left
