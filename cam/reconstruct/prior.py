@@ -154,8 +154,10 @@ def _thinned_levels(tree, points, spacing, k):
     while True:
         cell = np.floor(points / size)
         off = np.linalg.norm(points - (cell + 0.5) * size, axis=1)
-        order = np.lexsort((off, *cell.T[::-1]))
-        _, first = np.unique(cell[order], axis=0, return_index=True)
+        ijk = (cell - cell.min(axis=0)).astype(np.int64)
+        key = np.ravel_multi_index(ijk.T, tuple(ijk.max(axis=0) + 1))
+        order = np.lexsort((off, key))
+        _, first = np.unique(key[order], return_index=True)
         keep = np.sort(order[first])
         if len(keep) < 4 * k:
             return levels
