@@ -46,7 +46,7 @@ from cam import CheckCancel
 
 __all__ = ["band_vertices", "plane_distance"]
 
-# Neighbours whose normals are within 30 deg of a face's first (nearest) sample's are on that face.
+# Neighbours whose normals are within 30 deg of a face's reference sample's are on that face.
 _SAME_FACE_COS = float(np.cos(np.radians(30.0)))
 # A face counts fully from a tenth of the neighbours' facing weight (ramped from a twentieth), so that a
 # stray sample with a turned normal is not a face; the neighbours on none of three faces likewise.
@@ -94,7 +94,7 @@ def plane_distance(
         Typical sample spacing, the points' units; the blending width (in distance beyond the
         nearest sample) is twice this, and so is the softening of the facing weight.
     k : int
-        Nearest samples blended.
+        Nearest samples blended (a query over six spacings from the cloud: 4k of a thinned cloud).
     workers : int
         Threads for the k-NN queries.
     tree : cKDTree, optional
@@ -106,7 +106,8 @@ def plane_distance(
         An answered query blends its ``k`` nearest samples however far they are.
     creases : bool
         Combine the faces of neighbours at creases (see the module's docstring); False: the
-        blended planes everywhere (for normals whose fit spans a crease, whose planes are tilted there).
+        blended planes within six spacings of the cloud (for normals whose fit spans a crease, whose
+        planes are tilted there); farther out the faces are combined either way.
     check_cancel : callable, optional
         Called before each chunk of queries; it stops the work by raising.
 
