@@ -74,11 +74,7 @@ def _signed_distance_l(q: np.ndarray) -> np.ndarray:
     """The L solid's exact signed distance where the nearer box decides inside (true near its end face and
     its inner edge, where the tests ask): outside, the distance to the nearer box; inside, the depth in
     the box that holds the point deepest."""
-    boxes = [np.array([30.0, 20.0, 8.0]), np.array([8.0, 20.0, 24.0])]
-    outside = np.min([np.linalg.norm(np.maximum(np.maximum(-q, q - hi), 0.0), axis=1) for hi in boxes], axis=0)
-    depth = np.max([np.where(((q >= 0.0) & (q <= hi)).all(axis=1), np.minimum(q, hi - q).min(axis=1), 0.0)
-                    for hi in boxes], axis=0)
-    return np.where(depth > 0.0, -depth, outside)
+    return _signed_distance_boxes(q, [((0.0, 0.0, 0.0), (30.0, 20.0, 8.0)), ((0.0, 0.0, 0.0), (8.0, 20.0, 24.0))])
 
 
 @pytest.mark.parametrize(("centre", "outward", "hole"), [
@@ -165,7 +161,8 @@ def test_a_far_query_is_not_misled_by_a_thin_wall_s_other_side(seed):
     normals (the floor and the walls' rims are parallel), none is more than 1 mm off on the wrong side
     (0.75 mm at most, in the band beside the floor's concave edge)."""
     Manifold = pytest.importorskip("manifold3d").Manifold
-    solid = (Manifold.cube([50.0, 40.0, 20.0]) - Manifold.cube([46.0, 36.0, 20.0]).translate([2.0, 2.0, 2.0])).to_mesh()
+    solid = Manifold.cube([50.0, 40.0, 20.0]) - Manifold.cube([46.0, 36.0, 20.0]).translate([2.0, 2.0, 2.0])
+    solid = solid.to_mesh()
     mesh = trimesh.Trimesh(np.asarray(solid.vert_properties)[:, :3], np.asarray(solid.tri_verts))
     axis = np.array([1.0, 0.45, 0.3]) / np.linalg.norm([1.0, 0.45, 0.3])
     points, face = trimesh.sample.sample_surface(mesh, 40_000, seed=seed)
@@ -176,9 +173,10 @@ def test_a_far_query_is_not_misled_by_a_thin_wall_s_other_side(seed):
     queries = np.random.default_rng(seed).uniform([-5.0, -5.0, -5.0], [55.0, 45.0, 25.0], size=(200_000, 3))
     queries = queries[tree.query(queries)[0] > 6.0 * spacing]
     got = plane_distance(queries, points, normals, spacing=spacing, k=16, tree=tree)
-    exact = _signed_distance_boxes(queries, [((0.0, 0.0, 0.0), (50.0, 40.0, 2.0)), ((0.0, 0.0, 0.0), (2.0, 40.0, 20.0)),
-                                            ((48.0, 0.0, 0.0), (50.0, 40.0, 20.0)), ((0.0, 0.0, 0.0), (50.0, 2.0, 20.0)),
-                                            ((0.0, 38.0, 0.0), (50.0, 40.0, 20.0))])
+    floor_and_walls = [((0.0, 0.0, 0.0), (50.0, 40.0, 2.0)), ((0.0, 0.0, 0.0), (2.0, 40.0, 20.0)),
+                       ((48.0, 0.0, 0.0), (50.0, 40.0, 20.0)), ((0.0, 0.0, 0.0), (50.0, 2.0, 20.0)),
+                       ((0.0, 38.0, 0.0), (50.0, 40.0, 20.0))]
+    exact = _signed_distance_boxes(queries, floor_and_walls)
     wrong = np.sign(got) != np.sign(exact)
     assert len(queries) > 100_000
     worst = float(np.abs(exact[wrong]).max(initial=0.0))
@@ -186,7 +184,8 @@ def test_a_far_query_is_not_misled_by_a_thin_wall_s_other_side(seed):
 
 
 def _signed_distance_boxes(q: np.ndarray, boxes) -> np.ndarray:
-    """A union of boxes' signed distance where the nearer box decides inside (as _signed_distance_l)."""
+    """A union of boxes' signed distance where the nearer box decides inside: outside, the distance to the
+    nearer box; inside, the depth in the box that holds the point deepest. boxes: ((lo xyz), (hi xyz))."""
     lo, hi = (np.array([b[i] for b in boxes]) for i in (0, 1))
     outside = np.min([np.linalg.norm(np.maximum(np.maximum(a - q, q - b), 0.0), axis=1) for a, b in zip(lo, hi)],
                      axis=0)
