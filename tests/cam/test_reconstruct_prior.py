@@ -128,7 +128,7 @@ def test_the_sign_at_corners_beside_a_hole(corner):
 def test_the_sign_across_an_unscanned_band(edge, creases):
     """Exact samples of the L with no sample in an oblique band 3.5 mm wide (28 spacings; 7.5 mm along a
     face it crosses at a slant) across an edge (two convex, the concave inner one, the far top one):
-    queries in the band within 3.5 mm of the edge are up to 3.9 mm from any sample, and their 16 nearest
+    queries in the band within 3.5 mm of the edge are up to 5.8 mm from any sample, and their 16 nearest
     can all lie on one face, whose plane extended past that face's end across the band put queries 1.8-2.7 mm
     off the surface on the wrong side (a fin out of a convex crease of Fandisk with a band unscanned). Far
     queries blend samples all round them and combine the faces at creases, with or without the crease rule
