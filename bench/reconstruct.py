@@ -636,7 +636,7 @@ def corpus_row(part, half, gt, gt_dist, cond_name, args) -> tuple[dict, dict]:
         refused = None
         if not fid.get("ok", True):
             fields = {k: fid[k] for k in Fidelity.__dataclass_fields__}
-            for k in ("far_vertices_at", "far_points_at"):
+            for k in ("far_vertices_at", "far_points_at", "bridged_at"):
                 fields[k] = tuple(fields[k]) if fields[k] is not None else None
             try:
                 check_fidelity(Fidelity(**fields))
@@ -677,6 +677,15 @@ def _refused(row) -> bool:
     """The stage said no with a message: its self-check refused the mesh, or its normals could not be oriented."""
     igr = row.get("igr", {})
     return bool(igr.get("refused")) or str(igr.get("error", "")).startswith(("NormalsError", "FidelityError"))
+
+
+def _bridged_note(row) -> str:
+    """The self-check's bridged vertices (see cam.reconstruct.fidelity), for the table's note; '' for none."""
+    fid = (row.get("igr_report") or {}).get("fidelity") or {}
+    if not fid.get("bridged_vertices"):
+        return ""
+    return (f"passed with {fid['bridged_vertices']} vertices bridging a gap in the scan, up to "
+            f"{fid['bridge_distance']:.2f} mm from it (allowance {fid['tolerance']:.2f} mm)")
 
 
 def _meets(row) -> dict:
@@ -844,7 +853,8 @@ def write_corpus(args, rows: dict, parts, conds, absent) -> None:
                   (f"**Summary ({half}): Chamfer <= 1.5x: {counts['chamfer']} of {n}; Hausdorff <= 2x: "
                   f"{counts['hausdorff']} of {n}; sharp-edge error below Poisson's: {counts['sharp']} of {n}; "
                   f"time <= 30x: {counts['time']} of {n}; all four: {allm} of {n}; refused by the stage: "
-                  f"{sum(_refused(r) for r in hr)}; failed: "
+                  f"{sum(_refused(r) for r in hr)}; passed with surface bridged across a gap in the scan: "
+                  f"{sum(bool(_bridged_note(r)) and not _refused(r) for r in hr)}; failed: "
                   f"{sum('error' in r['igr'] and not _refused(r) for r in hr)}.**"),
                   "",
                   ("| part | condition | Chamfer ours / Poisson | ratio | Hausdorff ours / Poisson | ratio "
@@ -853,7 +863,7 @@ def write_corpus(args, rows: dict, parts, conds, absent) -> None:
         for r in hr:
             a, b, q = r["igr"], r.get("poisson", {}), _ratios(r)
             name = r["part"] + ("" if r.get("watertight_truth", True) else " (not watertight)")
-            note = a.get("error") or a.get("refused") or b.get("error") or ""
+            note = a.get("error") or a.get("refused") or b.get("error") or _bridged_note(r)
             note = note.replace("|", "/").replace("\n", " ")
             if len(note) > 160:
                 note = note[:157] + "..."

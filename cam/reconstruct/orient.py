@@ -23,6 +23,13 @@ two points lie from each other's tangent plane, measured against the gap a sheet
 only where no path along the surface exists. On walls thinner than a neighbourhood (0.7-1 mm at a 60 mm
 diagonal) that was not enough: a tree copied round their rims, where plane fits are poor, turned half the
 part inside out (abc8, abc9 of the bench corpus; MeshLab's orientation fails alike), which the votes mend.
+
+A gap in the scan (an unscanned band) cuts the surface into pieces, and two rules keep a piece's side:
+a pair of neighbours over three sheet gaps from each other's planes is no edge of the tree (across a band,
+one such pair over a rib's two faces was the only link between a ribbed plate's halves, and half the plate
+came out inside out); and a piece the votes do not settle takes the side of the surface it continues
+across the gap, the divergence theorem only where it continues none (a blind hole's bottom, cut off by a
+band, bounds no volume: its flux said inward).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from scipy.sparse.csgraph import (
     connected_components,
     minimum_spanning_tree,
 )
+from scipy.spatial import cKDTree
 
 from cam import GeometryError
 from cam.reconstruct.outside import outside_votes
@@ -53,6 +61,14 @@ _MAX_VOTE_DISAGREEMENT = 0.05
 # that turned the walls of a thin part agreed with 0.53 of them (abc8, abc9 at sigma 0.3 mm); otherwise the
 # disagreement is the votes' own, at slots narrower than the barrier (abc1, abc5: 0.83-0.97).
 _MIN_TREE_AGREEMENT = 0.75
+# A component cut off by a gap takes its side from the settled points among each member's 8 nearest that
+# continue its sheet (normals within 30 deg; see _side_across_gap).
+_GAP_NEIGHBOURS = 8
+# Neighbour pairs over three sheet gaps from each other's tangent planes are on two sheets and no edge of the
+# tree, unless that would leave a piece of under 1 % of the points apart (see _sheet_edges).
+_MAX_EDGE_GAPS = 3.0
+_MIN_PIECE_SHARE = 0.01
+_SAME_SHEET_COS = float(np.cos(np.radians(30.0)))
 
 
 class NormalsError(GeometryError):
@@ -208,7 +224,10 @@ def orient_normals(
     scale = float(np.median(dist[:, 0])) or 1.0
     weight = (1.0 - dots) + 1e-3 * dist.reshape(-1) / scale + 1e-9
     if np.isfinite(sheet_gap):
-        weight = weight + (_plane_offsets(points, normals, idx).reshape(-1) / sheet_gap) ** 2
+        offsets = _plane_offsets(points, normals, idx).reshape(-1)
+        weight = weight + (offsets / sheet_gap) ** 2
+        keep = _sheet_edges(offsets / sheet_gap, rows, cols, n)
+        rows, cols, weight = rows[keep], cols[keep], weight[keep]
     out = normals.copy()
     count, labels = connected_components(coo_matrix((weight, (rows, cols)), shape=(n, n)), directed=False)
     voted = np.zeros(0, dtype=np.int64) if votes is None else np.flatnonzero(votes)
@@ -230,20 +249,69 @@ def orient_normals(
         _propagate(out, order, pred)
         out = out[:n]
     area = dist[:, -1] ** 2  # about each point's share of the surface (k points within that radius)
-    for comp in np.setdiff1d(np.arange(count), labels[voted]):
-        members = np.flatnonzero(labels == comp)
+    settled = np.isin(labels, labels[voted])
+    unvoted = [np.flatnonzero(labels == comp) for comp in np.setdiff1d(np.arange(count), labels[voted])]
+    for members in sorted(unvoted, key=len, reverse=True):
         centre = points[members].mean(axis=0)
         # The walk starts at the point farthest from the centre; its side is settled below with the rest.
         seed = members[np.argmax(np.linalg.norm(points[members] - centre, axis=1))]
         order, pred = breadth_first_order(tree, seed, directed=False, return_predecessors=True)
         _propagate(out, order, pred)
-        # The seed's own normal can mislead: the farthest point is often a corner, where the plane fit
-        # blends the faces (a 40 x 40 mm prism at 0.1 % noise: every normal came out inward). Over a
-        # closed surface the outward normal's flux of (p - centre) is three times the volume, so its sign,
-        # summed over the component with each point's share of the area, settles which side is out.
-        if np.sum(area[members] * np.einsum("ij,ij->i", out[members], points[members] - centre)) < 0:
+        # A piece cut off by a gap in the scan takes the side of the surface it continues across the gap;
+        # only where it continues none is the flux below asked: a blind hole's bottom cut off by a band
+        # bounds no volume, and its outward normals (into the hole) have a negative flux (the chamfered
+        # cylinder of bench/reconstruct.py: its hole's bottom turned inside out, a 6 mm cavity round it).
+        side = _side_across_gap(points, out, members, np.flatnonzero(settled), sheet_gap)
+        if side == 0.0:
+            # The seed's own normal can mislead: the farthest point is often a corner, where the plane fit
+            # blends the faces (a 40 x 40 mm prism at 0.1 % noise: every normal came out inward). Over a
+            # closed surface the outward normal's flux of (p - centre) is three times the volume, so its
+            # sign, summed over the component with each point's share of the area, settles which side is out.
+            side = np.sign(np.sum(area[members] * np.einsum("ij,ij->i", out[members], points[members] - centre)))
+        if side < 0:
             out[members] = -out[members]
+        settled[members] = True
     return out, count
+
+
+def _sheet_edges(gaps: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> np.ndarray:
+    """Which neighbour pairs (``rows``, ``cols``; ``gaps`` their plane offsets in sheet gaps) are edges of the
+    tree: those within _MAX_EDGE_GAPS sheet gaps, and every pair of a point that would otherwise lie in a
+    piece of under _MIN_PIECE_SHARE of the points (stray points and small clusters keep their neighbours).
+
+    Where a gap in the scan cuts the surface in two, a pair across a thin wall can be the only link left
+    between the pieces (the bench's ribs with a band unscanned: one pair 2.6 mm apart, across a 3 mm rib's
+    two faces, and the tree turned half the part inside out through it); cut, the pieces are settled apart
+    (see _side_across_gap)."""
+    keep = gaps < _MAX_EDGE_GAPS
+    _, piece = connected_components(coo_matrix((np.ones(int(keep.sum())), (rows[keep], cols[keep])), shape=(n, n)),
+                                    directed=False)
+    small = (np.bincount(piece) < _MIN_PIECE_SHARE * n)[piece]
+    return keep | small[rows] | small[cols]
+
+
+def _side_across_gap(points: np.ndarray, normals: np.ndarray, members: np.ndarray, settled: np.ndarray,
+                     sheet_gap: float) -> float:
+    """+1 / -1: whether the normals of ``members`` (a component, indices into ``points``) agree with those of
+    the ``settled`` points (indices) that continue their sheets across the gap between them, or disagree;
+    0 where none does, or no side has over three quarters of the weight.
+
+    A pair continues a sheet where its normals lie within 30 deg and the settled point lies within a fifth
+    of their distance (plus ``sheet_gap`` where finite) of the member's tangent plane; pairs count by
+    (nearest pair's distance / their distance)^2, so the rims facing each other across the gap decide."""
+    if not len(settled):
+        return 0.0
+    dist, j = cKDTree(points[settled]).query(points[members], k=min(_GAP_NEIGHBOURS, len(settled)))
+    dist, j = dist.reshape(len(members), -1), j.reshape(len(members), -1)
+    other = settled[j]
+    dots = np.einsum("mj,mkj->mk", normals[members], normals[other])
+    offset = np.abs(np.einsum("mj,mkj->mk", normals[members], points[other] - points[members, None, :]))
+    slack = sheet_gap if np.isfinite(sheet_gap) else 0.0
+    weight = np.where((np.abs(dots) > _SAME_SHEET_COS) & (offset < 0.2 * dist + slack),
+                      (dist.min() / np.maximum(dist, 1e-300)) ** 2, 0.0)
+    total = weight.sum()
+    vote = float(np.sum(weight * np.sign(dots)))
+    return float(np.sign(vote)) if total > 0.0 and abs(vote) > 0.5 * total else 0.0
 
 
 def _propagate(normals: np.ndarray, order: np.ndarray, pred: np.ndarray) -> None:
