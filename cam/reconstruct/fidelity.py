@@ -187,7 +187,9 @@ def measure_fidelity(
     far_v = to_cloud > tolerance
     bridged = np.zeros(len(used), dtype=bool)
     if far_v.any():
-        bridged[far_v] = _bridges(verts[used[far_v]], to_cloud[far_v], pts, tree, tolerance)
+        # Isolated outliers take no part in the hull: a few round a sheet would make it look bridged.
+        kept = ~_isolated(pts, np.arange(len(pts)), tree, workers)
+        bridged[far_v] = _bridges(verts[used[far_v]], to_cloud[far_v], pts, kept, tree, tolerance)
     far_v &= ~bridged
     to_mesh = _cloud_to_mesh(verts, tri, used, pts, refine_above=tolerance, workers=workers)
     far_p = to_mesh > tolerance
@@ -250,22 +252,25 @@ def check_fidelity(fidelity: Fidelity) -> None:
         "a finer reconstruct.grid_cells and resolution help a thin feature", fidelity)
 
 
-def _bridges(at: np.ndarray, distance: np.ndarray, pts: np.ndarray, tree: cKDTree, tolerance: float) -> np.ndarray:
+def _bridges(at: np.ndarray, distance: np.ndarray, pts: np.ndarray, kept: np.ndarray, tree: cKDTree,
+             tolerance: float) -> np.ndarray:
     """Whether each vertex ``at`` (m, 3), ``distance`` (m,) from the cloud and over ``tolerance``, bridges a
     gap in the scan: at most BRIDGE_TOLERANCES tolerances out, and at most ``tolerance`` outside the
-    convex hull of the points within twice its distance plus the tolerance (outside as the largest
-    signed distance to the hull's facets' planes, exact where the nearest feature is a facet). All or
+    convex hull of the ``kept`` points ((n,) bool) within twice its distance plus the tolerance (outside
+    as the largest signed distance to the hull's facets' planes, exact where the nearest feature is a
+    facet). All or
     none: once one fails (the farthest are looked at first) the mesh is refused whatever the rest are,
     and none counts as bridged."""
     none = np.zeros(len(at), dtype=bool)
     for j in np.argsort(-distance):
         if distance[j] > BRIDGE_TOLERANCES * tolerance:
             return none
-        near = tree.query_ball_point(at[j], 2.0 * distance[j] + tolerance)
+        near = np.asarray(tree.query_ball_point(at[j], 2.0 * distance[j] + tolerance), dtype=np.int64)
+        near = near[kept[near]]
         try:
             # QJ: a flat patch of noiseless points has no 3-D hull; joggled, a flat one.
             facets = ConvexHull(pts[near], qhull_options="QJ").equations
-        except QhullError:  # fewer than four points, all on a line: nothing round it to bridge
+        except QhullError:  # fewer than four points round it: nothing to bridge
             return none
         if (facets[:, :3] @ at[j] + facets[:, 3]).max() > tolerance:
             return none
