@@ -99,11 +99,12 @@ def write_report(out: Path, rows: dict, labels: list[str]) -> None:
              "/ mean angle to the true normal's line (degrees). `refused`: our orientation check raised. "
              "Runs: " + ", ".join(f"`{lab}` ({rows[lab + ':meta']})" for lab in labels) + ".", ""]
     head = "| part | half | condition | " + " | ".join(f"ours `{lab}`" for lab in labels)
-    head += f" | k / noise ratio (`{labels[-1]}`) | MeshLab | time ours / MeshLab (s) |"
+    head += " | k / noise ratio (the latest run of the row) | MeshLab | time ours / MeshLab (s) |"
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
     for key in keys:
         part, cond = key.split("|")
-        last = rows[labels[-1]].get(key)
+        # A run of some conditions only (a change that touches them) leaves the others' latest run in place.
+        last = next((rows[lab][key] for lab in reversed(labels) if key in rows.get(lab, {})), None)
         cells = [_cell(rows[lab][key]["ours"]) if key in rows.get(lab, {}) else "–" for lab in labels]
         ours = last["ours"] if last else {}
         kcell = f"{ours['k']} / {ours['noise_ratio']:.2f}" if "k" in ours else "–"
