@@ -21,8 +21,8 @@ spacings) and the noise's extremes (about 4.5 sigma at 50k points): on 50k-point
 brackets at sigma = 0.25 % of the diagonal, 0.9-1.0 mm both ways against an
 allowance of 3.5 mm, where the inside-out mesh this was built for strayed 25 mm
 (31 % of the diagonal). A 10 mm hole plugged solid (its scanned wall then far
-from the surface) or a sheet where nothing was scanned is refused; a gap in the scan narrower than twice the
-allowance is bridged and passes.
+from the surface) or a sheet where nothing was scanned is refused; a gap in the
+scan narrower than twice the allowance is bridged and passes.
 
 A wider gap (an unscanned band: on a wall the scan crosses obliquely it is
 wider than the band) puts even the true surface farther than the allowance from
@@ -33,7 +33,9 @@ surface across a gap lies in the hull of the scanned surface round the gap (on
 its chords at a convex crease, about 0.7 times its distance out for a right
 angle), while a sheet hovering over a face, or a fin out of an edge, lies
 outside the hull by about its distance. The count, the largest distance and
-where it lies are reported, as surface the stage guessed. The cloud alone cannot
+where it lies are reported, as surface the stage guessed. Isolated outliers
+(below) take no part in the hull: a few round a sheet would make it look
+bridged. The cloud alone cannot
 tell an unscanned band from a hole whose walls were not scanned, nor surface
 filling a concave corner from one bridging it: within the bound, both pass.
 
@@ -186,8 +188,9 @@ def measure_fidelity(
     to_cloud, _ = tree.query(verts[used], workers=workers)
     far_v = to_cloud > tolerance
     bridged = np.zeros(len(used), dtype=bool)
-    if far_v.any():
-        # Isolated outliers take no part in the hull: a few round a sheet would make it look bridged.
+    # Only a mesh whose farthest vertex is within the bridge's bound can pass as bridged: the outliers'
+    # test (a k-NN query of the whole cloud) is spent on no other.
+    if far_v.any() and to_cloud.max() <= BRIDGE_TOLERANCES * tolerance:
         kept = ~_isolated(pts, np.arange(len(pts)), tree, workers)
         bridged[far_v] = _bridges(verts[used[far_v]], to_cloud[far_v], pts, kept, tree, tolerance)
     far_v &= ~bridged
