@@ -31,7 +31,7 @@ passes as *bridged* where it lies within the allowance of the convex hull of
 the points around it (those within twice its distance plus the allowance): a
 surface across a gap lies in the hull of the scanned surface round the gap (on
 its chords at a convex crease, about 0.7 times its distance out for a right
-angle), while a sheet hovering over a face, or a fin out of an edge, lies
+angle, 0.8 at a box's corner, which so passes to about 1.2 allowances), while a sheet hovering over a face, or a fin out of an edge, lies
 outside the hull by about its distance. The count, the largest distance and
 where it lies are reported, as surface the stage guessed. Isolated outliers
 (below) take no part in the hull: a few round a sheet would make it look
