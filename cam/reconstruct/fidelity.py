@@ -31,13 +31,14 @@ passes as *bridged* where it lies within the allowance of the convex hull of
 the points around it (those within twice its distance plus the allowance): a
 surface across a gap lies in the hull of the scanned surface round the gap (on
 its chords at a convex crease, about 0.7 times its distance out for a right
-angle, 0.8 at a box's corner, which so passes to about 1.2 allowances), while a sheet hovering over a face, or a fin out of an edge, lies
-outside the hull by about its distance. The count, the largest distance and
-where it lies are reported, as surface the stage guessed. Isolated outliers
-(below) take no part in the hull: a few round a sheet would make it look
-bridged. The cloud alone cannot
-tell an unscanned band from a hole whose walls were not scanned, nor surface
-filling a concave corner from one bridging it: within the bound, both pass.
+angle, 0.8 at a box's corner, which so passes to about 1.2 allowances), while a
+sheet hovering over a face, or a fin out of an edge, lies outside the hull by
+about its distance. The count, the largest distance and where it lies are
+reported, as surface the stage guessed. Isolated outliers (below) take no part
+in the hull: a few round a sheet would make it look bridged. The cloud alone
+cannot tell an unscanned band from a hole whose walls were not scanned, nor
+surface filling a concave corner from one bridging it: within the bound, both
+pass.
 
 Isolated outliers (points whose 8th neighbour is over :data:`ISOLATED_SPACINGS`
 times the cloud's median 8th-neighbour distance away) are counted but allowed:
@@ -188,11 +189,8 @@ def measure_fidelity(
     to_cloud, _ = tree.query(verts[used], workers=workers)
     far_v = to_cloud > tolerance
     bridged = np.zeros(len(used), dtype=bool)
-    # Only a mesh whose farthest vertex is within the bridge's bound can pass as bridged: the outliers'
-    # test (a k-NN query of the whole cloud) is spent on no other.
-    if far_v.any() and to_cloud.max() <= BRIDGE_TOLERANCES * tolerance:
-        kept = ~_isolated(pts, np.arange(len(pts)), tree, workers)
-        bridged[far_v] = _bridges(verts[used[far_v]], to_cloud[far_v], pts, kept, tree, tolerance)
+    if far_v.any():
+        bridged[far_v] = _bridges(verts[used[far_v]], to_cloud[far_v], pts, tree, tolerance, workers)
     far_v &= ~bridged
     to_mesh = _cloud_to_mesh(verts, tri, used, pts, refine_above=tolerance, workers=workers)
     far_p = to_mesh > tolerance
@@ -255,19 +253,19 @@ def check_fidelity(fidelity: Fidelity) -> None:
         "a finer reconstruct.grid_cells and resolution help a thin feature", fidelity)
 
 
-def _bridges(at: np.ndarray, distance: np.ndarray, pts: np.ndarray, kept: np.ndarray, tree: cKDTree,
-             tolerance: float) -> np.ndarray:
+def _bridges(at: np.ndarray, distance: np.ndarray, pts: np.ndarray, tree: cKDTree, tolerance: float,
+             workers: int) -> np.ndarray:
     """Whether each vertex ``at`` (m, 3), ``distance`` (m,) from the cloud and over ``tolerance``, bridges a
     gap in the scan: at most BRIDGE_TOLERANCES tolerances out, and at most ``tolerance`` outside the
-    convex hull of the ``kept`` points ((n,) bool) within twice its distance plus the tolerance (outside
-    as the largest signed distance to the hull's facets' planes, exact where the nearest feature is a
-    facet). All or
-    none: once one fails (the farthest are looked at first) the mesh is refused whatever the rest are,
-    and none counts as bridged."""
+    convex hull of the points within twice its distance plus the tolerance, isolated outliers left out
+    (outside as the largest signed distance to the hull's facets' planes, exact where the nearest feature
+    is a facet). All or none: once one fails (the farthest are looked at first) the mesh is refused
+    whatever the rest are, and none counts as bridged."""
     none = np.zeros(len(at), dtype=bool)
+    if distance.max() > BRIDGE_TOLERANCES * tolerance:
+        return none  # refused whatever: the outliers' test (a k-NN query of the whole cloud) is not spent
+    kept = ~_isolated(pts, np.arange(len(pts)), tree, workers)
     for j in np.argsort(-distance):
-        if distance[j] > BRIDGE_TOLERANCES * tolerance:
-            return none
         near = np.asarray(tree.query_ball_point(at[j], 2.0 * distance[j] + tolerance), dtype=np.int64)
         near = near[kept[near]]
         try:

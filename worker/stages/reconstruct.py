@@ -53,8 +53,9 @@ def _fidelity_comment(fid: dict) -> str:
     """The self-check's measurement, for the PLY header (the stage writes no JSON report)."""
     bridged = ""
     if fid.get("bridged_vertices"):
-        bridged = (f"; {fid['bridged_vertices']} vertices bridge a gap in the scan, up to {fid['bridge_distance']:.3g} mm "
-                   f"from it near ({', '.join(f'{c:.1f}' for c in fid['bridged_at'])}): surface guessed, not scanned")
+        near = ", ".join(f"{c:.1f}" for c in fid["bridged_at"])
+        bridged = (f"; {fid['bridged_vertices']} vertices bridge a gap in the scan, up to "
+                   f"{fid['bridge_distance']:.3g} mm from it near ({near}): surface guessed, not scanned")
     return (f"fidelity: every vertex within {fid['mesh_to_cloud']:.3g} mm of the cloud, the cloud within "
             f"{fid['cloud_to_mesh']:.3g} mm of the surface ({fid['outliers']} isolated outliers apart), "
             f"allowed {fid['tolerance']:.3g} mm = {fid['rule']}{bridged}")
